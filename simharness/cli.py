@@ -1,0 +1,163 @@
+"""Command line: argument parsing only; each command calls one function elsewhere.
+
+Bad input (`UserError`) prints one line `simharness: error: ...` and exits 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+from simharness.errors import SimulatorError, UserError
+
+
+def parse_seeds(text: str) -> list[int]:
+    """"0-99" or "1,5,9" or "3" or mixes ("0-4,10") -> sorted unique ints."""
+    seeds: set[int] = set()
+    try:
+        for part in text.split(","):
+            part = part.strip()
+            if "-" in part[1:]:
+                lo, hi = part.split("-", 1)
+                if int(hi) < int(lo):
+                    raise ValueError
+                seeds.update(range(int(lo), int(hi) + 1))
+            else:
+                seeds.add(int(part))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"bad seed list {text!r}; expected e.g. 0-99 or 1,5,9") from None
+    if min(seeds) < 0:
+        raise argparse.ArgumentTypeError(f"bad seed list {text!r}; seeds must be non-negative")
+    return sorted(seeds)
+
+
+def parse_set(text: str) -> tuple[str, list[str]]:
+    """"demand_scale=0.5,1,2" -> ("demand_scale", ["0.5", "1", "2"])."""
+    if "=" not in text:
+        raise argparse.ArgumentTypeError(f"bad --set {text!r}; expected KEY=V1,V2,...")
+    key, values = text.split("=", 1)
+    return key.strip(), [v.strip() for v in values.split(",") if v.strip()]
+
+
+def _call(target: str) -> Callable[[argparse.Namespace], int | None]:
+    """Lazy 'module:function' so that `simharness --help` does not import torch or SUMO."""
+    module, func = target.split(":")
+
+    def run(args: argparse.Namespace) -> int | None:
+        return getattr(importlib.import_module(module), func)(args)
+
+    return run
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="simharness", description=__doc__.splitlines()[0])
+    p.add_argument("--version", action="version", version=f"simharness {_version()}")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    def cmd(name: str, target: str, help: str) -> argparse.ArgumentParser:
+        sp = sub.add_parser(name, help=help, description=help)
+        sp.set_defaults(func=_call(target))
+        return sp
+
+    executor_args = argparse.ArgumentParser(add_help=False)
+    executor_args.add_argument("--workers", type=int, default=2, help="parallel processes (default 2)")
+    executor_args.add_argument("--executor", choices=["local", "ray"], default="local")
+    executor_args.add_argument("--address", default=None, help="Ray cluster address (with --executor ray)")
+
+    g = sub.add_parser("generate", parents=[executor_args], help="simulate a scenario over seeds into a data set")
+    g.set_defaults(func=_call("simharness.generation:generate_command"))
+    g.add_argument("scenario", help="scenario file, or a shipped scenario's name")
+    g.add_argument("--seeds", type=parse_seeds, default=[0], help="e.g. 0-99 (default 0)")
+    g.add_argument("--out", type=Path, required=True, help="data set folder")
+    g.add_argument("--duration", type=float, default=None, help="override recorded seconds per scene")
+
+    s = cmd("stats", "simharness.stats:stats_command", "a data set's figures (the TraPHic paper's Table 1)")
+    s.add_argument("data", type=Path)
+    s.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
+    s.add_argument("--figure", type=Path, default=None, help="write a top-down frame figure (PNG)")
+
+    t = cmd("train", "predictor.train:train_command", "train a predictor on a data set")
+    t.add_argument("--data", type=Path, required=True)
+    t.add_argument("--model", default="traphic", help="traphic, traphic-b, traphic-he, traphic-ho, or a baseline")
+    t.add_argument("--out", type=Path, required=True, help="run folder (checkpoint, config, log)")
+    t.add_argument("--epochs", type=int, default=16)
+    t.add_argument("--warmup-epochs", type=int, default=2, help="MSE epochs before the NLL")
+    t.add_argument("--batch-size", type=int, default=128)
+    t.add_argument("--lr", type=float, default=1e-3)
+    t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--max-samples", type=int, default=None, help="cap training windows (quick runs)")
+
+    e = cmd("evaluate", "simharness.evaluation:evaluate_command", "score a predictor open-loop on a data set")
+    e.add_argument("--data", type=Path, required=True)
+    e.add_argument("--model", required=True, help="a run folder, 'traphic' (shipped weights) or 'const-vel'")
+    e.add_argument("--out", type=Path, default=None, help="folder for metrics.json and figures")
+    e.add_argument("--protocol", default="traphic", help="traphic (3 s / 5 s) or eth-ucy (8 / 12 frames)")
+    e.add_argument("--split", default="test", choices=["test", "all"], help="held-out scenes or every scene")
+
+    c = sub.add_parser("closedloop", parents=[executor_args], help="drive an ego on a predictor's forecasts")
+    c.set_defaults(func=_call("simharness.closedloop:closedloop_command"))
+    c.add_argument("scenario")
+    c.add_argument("--predictor", default="traphic", help="traphic, const-vel, oracle, none, or a run folder")
+    c.add_argument("--seeds", type=parse_seeds, default=[0])
+    c.add_argument("--out", type=Path, default=Path("runs/closedloop"))
+    c.add_argument("--animate", type=int, default=0, help="write an animation for the first N episodes")
+    c.add_argument("--reaction", default=None, choices=["reactive", "cut_in", "ignore"],
+                   help="override how background agents treat the ego")
+
+    b = sub.add_parser("benchmark", parents=[executor_args], help="train and compare every method (paper tables)")
+    b.set_defaults(func=_call("predictor.benchmark:benchmark_command"))
+    b.add_argument("--data", type=Path, required=True)
+    b.add_argument("--profile", choices=["quick", "full"], default="quick")
+    b.add_argument("--out", type=Path, default=Path("runs/benchmark"))
+
+    i = cmd("import", "simharness.io.importers:import_command", "convert a public data set into ours")
+    i.add_argument("format", help="eth-ucy, traf, apolloscape, commonroad, argoverse2, tracknpred")
+    i.add_argument("src", type=Path, nargs="+", help="source file(s) or folder")
+    i.add_argument("--out", type=Path, required=True)
+    i.add_argument("--allow-pickle", action="store_true", help="allow reading pickled .npy files you trust")
+
+    x = cmd("export", "simharness.io.exporters:export_command", "write a data set in another tool's layout")
+    x.add_argument("format", help="tracknpred")
+    x.add_argument("data", type=Path)
+    x.add_argument("--out", type=Path, required=True)
+
+    w = sub.add_parser("sweep", parents=[executor_args], help="closed loop over a grid of scenario settings")
+    w.set_defaults(func=_call("simharness.sweep:sweep_command"))
+    w.add_argument("scenario")
+    w.add_argument("--set", dest="sets", type=parse_set, action="append", default=[],
+                   help="KEY=V1,V2,... (repeatable), e.g. demand_scale=0.5,1,2")
+    w.add_argument("--predictor", default="traphic")
+    w.add_argument("--seeds", type=parse_seeds, default=[0])
+    w.add_argument("--out", type=Path, default=Path("runs/sweep"))
+
+    sc = cmd("scenario", "simharness.scenario:scenario_command", "validate a scenario file, or list the keys")
+    sc.add_argument("scenario", nargs="?", help="file to check; omit to print every key with its default")
+    return p
+
+
+def _version() -> str:
+    from simharness import __version__
+
+    return __version__
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except UserError as e:
+        print(f"simharness: error: {e}", file=sys.stderr)
+        return 2
+    except SimulatorError as e:
+        print(f"simharness: simulator failed: {e}", file=sys.stderr)
+        return 3
+    except KeyboardInterrupt:
+        print("simharness: interrupted; completed shards are kept, rerun to finish", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

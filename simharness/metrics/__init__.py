@@ -1,0 +1,1 @@
+"""Pure metric functions of arrays and valid masks (shapes in each docstring)."""

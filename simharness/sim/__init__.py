@@ -1,0 +1,21 @@
+"""Simulator backends behind one protocol (`simharness.sim.base.Simulator`)."""
+
+from __future__ import annotations
+
+from simharness.scenario import ScenarioSpec
+from simharness.sim.base import EgoCommand, Event, Frame, RoadGeometry, Simulator, scene_from_frames
+
+__all__ = ["EgoCommand", "Event", "Frame", "RoadGeometry", "Simulator", "make_simulator", "scene_from_frames"]
+
+
+def make_simulator(spec: ScenarioSpec) -> Simulator:
+    """The backend the scenario names; imported lazily so one backend's deps never load the other."""
+    if spec.backend == "sumo":
+        from simharness.sim.sumo import SumoSimulator
+
+        return SumoSimulator(spec)
+    if spec.backend == "highway":
+        from simharness.sim.highway import HighwaySimulator
+
+        return HighwaySimulator(spec)
+    raise ValueError(f"unknown backend {spec.backend!r}")  # the scenario loader already checked
