@@ -123,3 +123,231 @@ def plot_frame(scene: Scene, frame: int, path: Path | str, road: RoadGeometry | 
     fig.savefig(path)
     plt.close(fig)
     return path
+
+
+# ---------------------------------------------------------------------- closed loop (simharness.closedloop)
+def animate_episode(scene: Scene, path: Path | str, road: RoadGeometry | None = None,
+                    forecast_frames: list[int] | None = None, forecasts: list | None = None,
+                    view: float = 45.0, max_frames: int = 150, fps: int = 5) -> Path:
+    """GIF of a closed-loop episode following the ego: traffic by type, the ego black, its latest
+    forecast of the others (lines, 1-sigma end circles), agents touching the ego edged red.
+
+    scene: the recorded episode (ego row set); forecast_frames/forecasts: frame index and `Forecast` of
+    each prediction; view: half-width of the window around the ego (m).
+    """
+    import imageio.v2 as imageio
+    from matplotlib.patches import Circle
+
+    from simharness.metrics.safety import ego_contact
+
+    path = Path(path)
+    e = scene.ego
+    frames = np.flatnonzero(scene.valid[e]) if e >= 0 else np.arange(scene.num_frames)
+    frames = frames[:: max(1, int(np.ceil(len(frames) / max_frames)))]
+    contact = ego_contact(scene.xy, scene.heading, scene.length, scene.width, scene.valid, e) if e >= 0 else None
+    issued = np.asarray(forecast_frames or [], int)
+    fig, ax = plt.subplots(figsize=(8, 3.2), dpi=90)
+    images = []
+    for f in frames:  # one image per frame; agents drawn vectorised inside
+        ax.clear()
+        draw_road(ax, road)
+        draw_trails(ax, scene, int(f), 2.0)
+        valid = scene.valid[:, f]
+        rows = np.flatnonzero(valid)
+        hit = contact[rows, f] if contact is not None else None
+        if hit is not None and e in rows:
+            hit = hit.copy()
+            hit[rows == e] = contact[:, f].any()
+        draw_agents(ax, scene.xy[rows, f], scene.heading[rows, f], scene.length[rows], scene.width[rows],
+                    scene.agent_type[rows], ego=int(np.flatnonzero(rows == e)[0]) if e in rows else -1, highlight=hit)
+        k = np.searchsorted(issued, f, side="right") - 1
+        if forecasts and k >= 0:
+            fc = forecasts[k]
+            ax.add_collection(LineCollection(list(fc.mean), colors="#444444", linewidths=0.7, alpha=0.7, zorder=4))
+            if fc.sigma_rho is not None:
+                for m in range(len(fc.agent_id)):  # drawing only
+                    ax.add_patch(Circle(fc.mean[m, -1], float(fc.sigma_rho[m, -1, :2].mean()), fill=False,
+                                        edgecolor="#444444", linewidth=0.4, alpha=0.5, zorder=4))
+        cx, cy = scene.xy[e, f] if e >= 0 else scene.xy[valid, f].mean(0)
+        ax.set_xlim(cx - view, cx + view)
+        ax.set_ylim(cy - view * 0.3, cy + view * 0.3)
+        ax.set_aspect("equal")
+        collided = contact is not None and contact[:, : f + 1].any()
+        ax.set_title(f"{scene.meta.get('predictor', '')} seed {scene.meta.get('seed', '')}  t = {scene.times[f]:.1f} s"
+                     f"  speed {scene.speed[e, f]:.1f} m/s" + ("  COLLISION" if collided else ""),
+                     fontsize=8, color="red" if collided else "black")
+        fig.tight_layout()
+        fig.canvas.draw()
+        images.append(np.asarray(fig.canvas.buffer_rgba())[..., :3].copy())
+    plt.close(fig)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(".tmp-" + path.name)
+    imageio.mimsave(tmp, images, duration=1.0 / fps, loop=0)
+    tmp.replace(path)
+    return path
+
+
+def plot_scorecard(scores: dict[str, dict], path: Path | str) -> Path:
+    """Bars with 95% CIs per ego: collision rate, near-miss rate, progress, online ADE -> PNG.
+
+    scores: ego name -> `simharness.closedloop.aggregate` output.
+    """
+    path = Path(path)
+    panels = (("collision_rate", "collision rate"), ("near_miss_rate", "near-miss rate"),
+              ("progress_m", "progress (m)"), ("online_ade", "online ADE (m)"))
+    names = list(scores)
+    fig, axes = plt.subplots(1, len(panels), figsize=(3.2 * len(panels), 3.0), dpi=110)
+    for ax, (key, label) in zip(axes, panels, strict=True):
+        mean = np.array([scores[n][key]["mean"] for n in names], float)
+        lo = np.array([scores[n][key]["lo"] for n in names], float)
+        hi = np.array([scores[n][key]["hi"] for n in names], float)
+        x = np.arange(len(names))
+        ok = np.isfinite(mean)
+        ax.bar(x[ok], mean[ok], color="#4c72b0")
+        ax.errorbar(x[ok], mean[ok], yerr=[mean[ok] - lo[ok], hi[ok] - mean[ok]], fmt="none", ecolor="black",
+                    capsize=3)
+        ax.set_xticks(x, names, rotation=30, fontsize=8)
+        ax.set_title(label, fontsize=9)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path)
+    plt.close(fig)
+    return path
+
+
+def plot_online_error_by_type(scores: dict[str, dict], path: Path | str) -> Path:
+    """Online ADE (mean Euclidean, m) per agent type, one bar group per type, one bar per ego -> PNG."""
+    path = Path(path)
+    names = [n for n in scores if scores[n].get("online_by_type")]
+    types = [t.label for t in AgentType if any(t.label in scores[n]["online_by_type"] for n in names)]
+    fig, ax = plt.subplots(figsize=(8, 3.2), dpi=110)
+    width = 0.8 / max(len(names), 1)
+    for i, n in enumerate(names):
+        vals = [scores[n]["online_by_type"].get(t, {}).get("ade", {}).get("mean", np.nan) for t in types]
+        ax.bar(np.arange(len(types)) + i * width, vals, width, label=n)
+    ax.set_xticks(np.arange(len(types)) + 0.4 - width / 2, types, fontsize=8)
+    ax.set_ylabel("online ADE (m)")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path)
+    plt.close(fig)
+    return path
+
+
+def write_report(run_dir: Path | str, title: str = "Closed-loop report", extra_md: str = "") -> Path:
+    """`report.md` in run_dir from its scores.json files (run_dir/scores.json or run_dir/*/scores.json):
+    the scorecard table with 95% CIs, ego collisions by type, online error by type, figures, animations.
+    """
+    import json
+
+    from simharness.closedloop import SCORECARD_ROWS
+
+    run_dir = Path(run_dir)
+    files = ([run_dir / "scores.json"] if (run_dir / "scores.json").is_file()
+             else sorted(run_dir.glob("*/scores.json")))
+    scores = {}
+    for f in files:
+        s = json.loads(f.read_text())
+        scores[s.get("predictor", f.parent.name)] = s
+    lines = [f"# {title}", ""]
+    if extra_md:
+        lines += [extra_md, ""]
+    if scores:
+        first = next(iter(scores.values()))
+        lines += [f"Scenario `{first.get('scenario')}`, background reaction `{first.get('reaction')}`, "
+                  f"seeds {first.get('seeds')}; mean [95% bootstrap CI] over episodes.", ""]
+
+        def cell(d: dict) -> str:
+            m = d.get("mean", float("nan")) if isinstance(d, dict) else float("nan")
+            return "n/a" if not np.isfinite(m) else f"{m:.2f} [{d['lo']:.2f}, {d['hi']:.2f}]"
+
+        names = list(scores)
+        lines += ["| | " + " | ".join(names) + " |", "|---" * (len(names) + 1) + "|"]
+        lines.append("| episodes | " + " | ".join(str(scores[n]["episodes"]) for n in names) + " |")
+        for key, label in SCORECARD_ROWS:
+            lines.append(f"| {label} | " + " | ".join(cell(scores[n].get(key, {})) for n in names) + " |")
+        lines += ["", "Ego collisions by the other agent's type (total over episodes):", "",
+                  "| type | " + " | ".join(names) + " |", "|---" * (len(names) + 1) + "|"]
+        for t in AgentType:
+            lines.append(f"| {t.label} | " + " | ".join(str(scores[n]["collisions_by_type"][t.label]["total"])
+                                                       for n in names) + " |")
+        fig = plot_scorecard(scores, run_dir / "scorecard.png")
+        lines += ["", f"![scorecard]({fig.name})", ""]
+        if any(scores[n].get("online_by_type") for n in names):
+            fig2 = plot_online_error_by_type(scores, run_dir / "online_error_by_type.png")
+            lines += ["Online prediction error by agent type (each forecast against what the agents did next):", "",
+                      f"![online error by type]({fig2.name})", ""]
+        gifs = sorted(run_dir.glob("*.gif")) + sorted(run_dir.glob("*/*.gif"))
+        for g in gifs[:4]:
+            lines += [f"![episode]({g.relative_to(run_dir).as_posix()})", ""]
+    path = run_dir / "report.md"
+    tmp = path.with_name(".tmp-report.md")
+    tmp.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    tmp.replace(path)
+    return path
+
+
+# ---------------------------------------------------------------------- open-loop prediction figures (H4)
+def plot_rmse_curve(curves: dict[str, list[float]], path: Path | str, units: str = "m",
+                    title: str = "RMSE per horizon second") -> Path:
+    """The paper's Figure 5: RMSE at t = 1..S s per method. curves: name -> (S,) values."""
+    path = Path(path)
+    fig, ax = plt.subplots(figsize=(5.5, 4), dpi=120)
+    for name, vals in curves.items():
+        ax.plot(np.arange(1, len(vals) + 1), vals, marker="o", label=name)
+    ax.set_xlabel("prediction horizon (s)")
+    ax.set_ylabel(f"RMSE ({units})")
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path)
+    plt.close(fig)
+    return path
+
+
+def _sigma_ellipses(mean: np.ndarray, sigma_rho: np.ndarray) -> list[np.ndarray]:
+    """1-sigma ellipses (K, 40, 2) of points mean (K, 2), sigma_rho (K, 3)."""
+    sx, sy, rho = sigma_rho[:, 0], sigma_rho[:, 1], sigma_rho[:, 2]
+    cov = np.stack([np.stack([sx**2, rho * sx * sy], -1), np.stack([rho * sx * sy, sy**2], -1)], -2)
+    vals, vecs = np.linalg.eigh(cov)
+    a = np.linspace(0, 2 * np.pi, 40)
+    circle = np.stack([np.cos(a), np.sin(a)], -1)  # (40, 2)
+    pts = np.einsum("kij,kj,aj->kai", vecs, np.sqrt(np.maximum(vals, 0)), circle)
+    return list(pts + mean[:, None])
+
+
+def plot_forecasts(scene: Scene, now: int, rows: np.ndarray, history: np.ndarray, truth: np.ndarray,
+                   mean: np.ndarray, path: Path | str, sigma_rho: np.ndarray | None = None,
+                   road: RoadGeometry | None = None, title: str | None = None, every: int = 5) -> Path:
+    """The paper's Figure 4: traffic at `now`, and for targets `rows` (M,) their history (M, H, 2) in black,
+    ground truth (M, F, 2) green, prediction (M, F, 2) red with 1-sigma ellipses every `every` frames."""
+    path = Path(path)
+    valid = scene.valid[:, now]
+    fig, ax = plt.subplots(figsize=(12, 4.5), dpi=120)
+    draw_road(ax, road)
+    draw_agents(ax, scene.xy[valid, now], scene.heading[valid, now], scene.length[valid], scene.width[valid],
+                scene.agent_type[valid])
+    ax.add_collection(LineCollection(list(history), colors="black", linewidths=1.2, zorder=4))
+    ax.add_collection(LineCollection(list(truth), colors="#2ca02c", linewidths=1.5, zorder=4))
+    ax.add_collection(LineCollection(list(mean), colors="#d62728", linewidths=1.5, zorder=5))
+    if sigma_rho is not None:
+        idx = np.arange(every - 1, mean.shape[1], every)
+        ell = _sigma_ellipses(mean[:, idx].reshape(-1, 2), sigma_rho[:, idx].reshape(-1, 3))
+        ax.add_collection(PolyCollection(ell, facecolor="#d62728", alpha=0.12, edgecolor="none", zorder=4))
+    pts = np.concatenate([history.reshape(-1, 2), truth.reshape(-1, 2), mean.reshape(-1, 2)])
+    (x0, y0), (x1, y1) = pts.min(0) - 10, pts.max(0) + 10
+    ax.set_xlim(x0, x1)
+    ax.set_ylim(y0, y1)
+    ax.set_aspect("equal")
+    ax.set_xlabel(f"x ({scene.units})")
+    ax.set_ylabel(f"y ({scene.units})")
+    ax.set_title(title or f"t = {scene.times[now]:.1f} s: history (black), truth (green), prediction (red, 1 sigma)")
+    type_legend(ax, scene.agent_type[valid])
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path)
+    plt.close(fig)
+    return path

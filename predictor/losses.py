@@ -1,0 +1,44 @@
+"""Training losses on model outputs in the target's frame (metres).
+
+pred (B, F, 5) = (mu_x, mu_y, sigma_x, sigma_y, rho): sigma are standard deviations (> 0, the model
+makes them positive with softplus), rho a correlation in (-1, 1) (tanh). fut (B, F, 2), mask (B, F).
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+_LOG_2PI = math.log(2 * math.pi)
+
+
+def gaussian_nll(pred: torch.Tensor, fut: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """Mean negative log-likelihood (nats per valid point) of a bivariate Gaussian.
+
+    -log p = log 2pi + log sx + log sy + 0.5 log(1 - rho^2) + z / (2 (1 - rho^2)),
+    z = dx^2/sx^2 + dy^2/sy^2 - 2 rho dx dy / (sx sy).
+    """
+    dx, dy = fut[..., 0] - pred[..., 0], fut[..., 1] - pred[..., 1]
+    sx, sy = pred[..., 2], pred[..., 3]
+    rho = pred[..., 4].clamp(-0.9999, 0.9999)
+    one_r2 = 1 - rho**2
+    z = (dx / sx) ** 2 + (dy / sy) ** 2 - 2 * rho * dx * dy / (sx * sy)
+    nll = _LOG_2PI + torch.log(sx) + torch.log(sy) + 0.5 * torch.log(one_r2) + z / (2 * one_r2)
+    m = mask.to(nll.dtype)
+    return (nll * m).sum() / m.sum().clamp_min(1)
+
+
+def mse(pred: torch.Tensor, fut: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """Mean squared Euclidean error (m^2 per valid point) of the predicted means."""
+    sq = ((pred[..., :2] - fut) ** 2).sum(-1)
+    m = mask.to(sq.dtype)
+    return (sq * m).sum() / m.sum().clamp_min(1)
+
+
+def loss_for_epoch(epoch: int, warmup_epochs: int) -> str:
+    """"mse" for the first `warmup_epochs` epochs (means first), then "nll"."""
+    return "mse" if epoch < warmup_epochs else "nll"
+
+
+LOSSES = {"mse": mse, "nll": gaussian_nll}

@@ -1,0 +1,176 @@
+"""Training loop: Adam, MSE warm-up then bivariate Gaussian NLL, validation every epoch, best checkpoint.
+
+A run folder holds model.pt (best validation state_dict), config.json (model and window config, seed,
+data set hash, split, versions, best epoch) and log.csv (losses per epoch). Splits are by scene
+(predictor.split), the same that evaluation uses for its test split.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import hashlib
+import io
+import json
+import math
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from predictor.checkpoint import atomic_write_text, save_checkpoint, versions
+from predictor.features import FeatureStore, WindowConfig
+from predictor.split import split_scenes
+from simharness.errors import UserError
+from simharness.scene import Scene
+
+CACHE_DIR = ".windows"  # inside the data set folder: the cached sample index per window config
+
+
+def open_data(data: Path) -> tuple[str, list[str], Any]:
+    """(content hash, scene ids, scenes_fn) of a data set folder; scenes are read only if the cache misses."""
+    # The one harness module predictor/ reads: the data set format, in the direction data flows.
+    from simharness.io.parquet import Dataset
+
+    ds = Dataset(Path(data))
+    key = str(ds.manifest.get("content_hash") or ds.scene_ids)
+
+    def scenes_fn() -> tuple[list[Scene], list[str]]:
+        scenes = [ds.scene(i) for i in range(len(ds))]
+        return [s.replace(meta={**s.meta, "scene_id": sid}) for s, sid in zip(scenes, ds.scene_ids, strict=True)], \
+            list(ds.scene_ids)
+
+    return key, list(ds.scene_ids), scenes_fn
+
+
+def load_windows(data: Path, window: WindowConfig, progress: bool = True) -> FeatureStore:
+    """The cached FeatureStore of a data set (built on first use)."""
+    key, _, scenes_fn = open_data(data)
+    return FeatureStore.cached(Path(data) / CACHE_DIR, key, window, scenes_fn, progress=progress)
+
+
+def _epoch_eval(model: Any, store: FeatureStore, idx: np.ndarray, batch_size: int) -> dict[str, float]:
+    import torch
+
+    from predictor.losses import gaussian_nll, mse
+
+    tot = {"mse": 0.0, "nll": 0.0}
+    n = 0
+    model.eval()
+    with torch.no_grad():
+        for i in range(0, len(idx), batch_size * 4):
+            b = store.batch(idx[i:i + batch_size * 4]).tensors()
+            out = model(b)
+            w = float(b["fut_valid"].sum())
+            tot["mse"] += float(mse(out, b["fut"], b["fut_valid"])) * w
+            tot["nll"] += float(gaussian_nll(out, b["fut"], b["fut_valid"])) * w
+            n += w
+    model.train()
+    return {k: v / max(n, 1) for k, v in tot.items()}
+
+
+def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), epochs: int = 16,
+          warmup_epochs: int = 2, batch_size: int = 128, lr: float = 1e-3, seed: int = 0,
+          max_samples: int | None = None, window: WindowConfig | None = None,
+          model_config: dict[str, Any] | None = None, threads: int | None = None,
+          progress: bool = True) -> dict[str, Any]:
+    """Train `model` on the train split of `data`, keep the best on the val split -> summary dict.
+
+    Writes out/model.pt, out/config.json, out/log.csv. Returns {"best_epoch", "best_val", "val_history",
+    "train_samples", "samples_per_s", ...}.
+    """
+    import torch
+    from tqdm import tqdm
+
+    from predictor.losses import LOSSES, loss_for_epoch
+    from predictor.models import build_model
+
+    if epochs < 1 or batch_size < 1 or not lr > 0 or warmup_epochs < 0:
+        raise UserError(f"bad training settings: epochs {epochs}, batch size {batch_size}, lr {lr}, "
+                        f"warm-up {warmup_epochs}; expected positive numbers")
+    torch.set_num_threads(threads or min(2, os.cpu_count() or 1))
+    torch.manual_seed(seed)
+    rng = np.random.default_rng(seed)
+    window = window or WindowConfig()
+    key, ids, scenes_fn = open_data(data)
+    store = FeatureStore.cached(Path(data) / CACHE_DIR, key, window, scenes_fn, progress=progress)
+    split = split_scenes(ids)
+    train_idx, val_idx = store.samples_of(split["train"]), store.samples_of(split["val"])
+    if max_samples is not None and len(train_idx) > max_samples:
+        train_idx = np.sort(rng.choice(train_idx, max_samples, replace=False))
+    if len(train_idx) == 0 or len(val_idx) == 0:
+        raise UserError(f"{data}: no complete {window.history_s:g} s + {window.future_s:g} s windows in the "
+                        f"{'train' if len(train_idx) == 0 else 'val'} scenes; record longer scenes")
+    mcfg = {"history": store.H, "future": store.F, "max_neighbours": window.max_neighbours,
+            "max_horizon": window.max_horizon, "neighbour_grid": window.neighbour_grid,
+            "horizon_grid": window.horizon_grid, **(model_config or {})}
+    net = build_model(model, mcfg)
+    opt = torch.optim.Adam(net.parameters(), lr=lr)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    config = {"model": model, "model_config": net.cfg.to_dict(), "window": window.to_dict(),
+              "frames": {"history": store.H, "future": store.F, "step": store.step},
+              "seed": seed, "data": str(data), "data_hash": key, "split": split,
+              "train": {"epochs": epochs, "warmup_epochs": warmup_epochs, "batch_size": batch_size, "lr": lr,
+                        "max_samples": max_samples, "train_samples": int(len(train_idx)),
+                        "val_samples": int(len(val_idx))},
+              "versions": versions()}
+    config["config_hash"] = hashlib.sha256(
+        json.dumps({k: config[k] for k in ("model", "model_config", "window", "train", "seed")},
+                   sort_keys=True).encode()).hexdigest()[:16]
+    log = io.StringIO()
+    writer = csv.writer(log)
+    writer.writerow(["epoch", "loss", "train_loss", "val_mse", "val_nll", "val_rmse_m", "seconds", "samples_per_s"])
+    best, best_epoch, history = math.inf, -1, []
+    samples_seen, train_time = 0, 0.0
+    for epoch in range(epochs):
+        kind = loss_for_epoch(epoch, warmup_epochs)
+        if epoch == warmup_epochs:
+            best = math.inf  # the selection criterion switches from MSE to NLL here
+        order = rng.permutation(train_idx)
+        t0, tot, nb = time.perf_counter(), 0.0, 0
+        bar = tqdm(range(0, len(order), batch_size), desc=f"epoch {epoch + 1}/{epochs} {kind}", unit="batch",
+                   disable=not progress, leave=False)
+        for i in bar:
+            b = store.batch(order[i:i + batch_size]).tensors()
+            loss = LOSSES[kind](net(b), b["fut"], b["fut_valid"])
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            tot += float(loss)
+            nb += 1
+            if nb % 20 == 0:
+                bar.set_postfix(loss=f"{tot / nb:.3f}")
+        secs = time.perf_counter() - t0
+        samples_seen += len(order)
+        train_time += secs
+        val = _epoch_eval(net, store, val_idx, batch_size)
+        crit = val[kind]
+        history.append({"epoch": epoch + 1, "loss": kind, "train": tot / max(nb, 1), **val})
+        writer.writerow([epoch + 1, kind, f"{tot / max(nb, 1):.6f}", f"{val['mse']:.6f}", f"{val['nll']:.6f}",
+                         f"{math.sqrt(val['mse']):.4f}", f"{secs:.2f}", f"{len(order) / secs:.1f}"])
+        if crit < best:
+            best, best_epoch = crit, epoch + 1
+            save_checkpoint(net, out / "model.pt")
+        if progress:
+            tqdm.write(f"epoch {epoch + 1}: {kind} train {tot / max(nb, 1):.3f}  val mse {val['mse']:.3f} "
+                       f"nll {val['nll']:.3f}  ({len(order) / secs:.0f} samples/s)")
+        atomic_write_text(out / "log.csv", log.getvalue())
+    config["best_epoch"], config["best_val"] = best_epoch, best
+    atomic_write_text(out / "config.json", json.dumps(config, indent=1, sort_keys=True) + "\n")
+    return {"best_epoch": best_epoch, "best_val": best, "val_history": history,
+            "train_samples": int(len(train_idx)), "samples_per_s": samples_seen / max(train_time, 1e-9),
+            "out": str(out), "config": config}
+
+
+def train_command(args: argparse.Namespace) -> int:
+    """`simharness train --data DIR --model NAME --out RUN [...]`."""
+    res = train(args.data, model=args.model, out=args.out, epochs=args.epochs, warmup_epochs=args.warmup_epochs,
+                batch_size=args.batch_size, lr=args.lr, seed=args.seed, max_samples=args.max_samples)
+    kind = "nll" if res["best_epoch"] > args.warmup_epochs else "mse"
+    print(f"{args.model}: best epoch {res['best_epoch']} (val {kind} {res['best_val']:.3f}), "
+          f"{res['train_samples']} training windows, {res['samples_per_s']:.0f} samples/s -> {args.out}")
+    return 0
+

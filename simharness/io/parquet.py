@@ -1,0 +1,401 @@
+"""The project's own data set format: a folder of Parquet shards (one per scene) and `manifest.json`.
+
+One row per valid agent-frame, sorted by (frame, agent row)::
+
+    scene_id, frame, t, agent_id, agent_type, x, y, heading, speed, length, width, is_ego, <extra...>
+
+`agent_type` is a dictionary-encoded lowercase string (dictionary = every `AgentType` label, in code
+order, so pandas reads it as a categorical whose codes are the `AgentType` values); one float32
+column per `Scene.extra` key follows. Everything else a `Scene` holds (dt, frame0, frame count, the
+agent table in row order, ego, meta with events, seed, road geometry) sits in the shard's Parquet
+key-value metadata under `simharness` as JSON, so a shard is self-describing. Entries of invalid
+agent-frames are not stored: they read back as zeros (what simulators and `scene_from_frames` emit).
+
+Every file is written under a temporary name and renamed when complete; identical input gives
+identical bytes (no timestamps, hostnames or wall times anywhere).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import importlib.metadata
+import json
+import os
+import platform
+import shutil
+import tempfile
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from simharness.errors import UserError
+from simharness.scene import LABELS, AgentType, Scene, agent_types_from_labels
+from simharness.sim.base import RoadGeometry
+
+SCHEMA_VERSION: int = 1
+MANIFEST = "manifest.json"
+META_KEY = b"simharness"
+TMP_PREFIX = ".tmp-"
+BASE_COLUMNS = ("scene_id", "frame", "t", "agent_id", "agent_type", "x", "y", "heading", "speed",
+                "length", "width", "is_ego")
+_TYPE_DICT = pa.array(LABELS, pa.string())
+
+
+# ---------------------------------------------------------------------- small file helpers
+def _json_default(obj: Any) -> Any:
+    """numpy scalars/arrays and tuples in meta become plain JSON."""
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, (set, frozenset)):
+        return sorted(obj)
+    raise TypeError(f"meta value of type {type(obj).__name__} is not JSON-serialisable")
+
+
+def dumps(obj: Any, indent: int | None = None) -> str:
+    """Canonical JSON (sorted keys) so equal content gives equal bytes."""
+    return json.dumps(obj, sort_keys=True, indent=indent, default=_json_default, allow_nan=True,
+                      separators=(",", ": ") if indent else (",", ":"))
+
+
+def atomic_write_bytes(path: Path, data: bytes) -> None:
+    """Write to a temporary sibling, fsync, rename: readers never see half a file."""
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix=TMP_PREFIX + path.name + ".", dir=path.parent)
+    try:
+        os.fchmod(fd, 0o644)  # mkstemp makes 0600; data sets are meant to be shared
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+
+
+def file_sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def software_versions() -> dict[str, str]:
+    """Versions of what shapes the data (python, numpy, pyarrow, sumo, highway-env, simharness)."""
+    out = {"python": platform.python_version(), "numpy": np.__version__, "pyarrow": pa.__version__}
+    for key, dist in (("sumo", "eclipse-sumo"), ("libsumo", "libsumo"), ("highway-env", "highway-env"),
+                      ("simharness", "simharness")):
+        try:
+            out[key] = importlib.metadata.version(dist)
+        except importlib.metadata.PackageNotFoundError:
+            out[key] = "not installed"
+    return out
+
+
+# ---------------------------------------------------------------------- one shard
+def scene_table(scene: Scene, scene_id: str) -> pa.Table:
+    """The rows of one shard: valid agent-frames sorted by (frame, agent row), metadata attached."""
+    clash = sorted(set(scene.extra) & set(BASE_COLUMNS))
+    if clash:
+        raise ValueError(f"Scene.extra key {clash[0]!r} clashes with a base column name")
+    # (frame, row) order: transpose so that frames vary slowest.
+    col, row = np.nonzero(scene.valid.T)
+    n = row.size
+    frame = (scene.frame0 + col).astype(np.int32)
+    types = pa.DictionaryArray.from_arrays(pa.array(scene.agent_type[row].astype(np.int8), pa.int8()),
+                                           _TYPE_DICT)
+    columns: dict[str, pa.Array] = {
+        "scene_id": pa.DictionaryArray.from_arrays(pa.array(np.zeros(n, np.int8)), pa.array([scene_id])),
+        "frame": pa.array(frame),
+        "t": pa.array(frame.astype(np.float64) * scene.dt),
+        "agent_id": pa.array(scene.agent_id[row].astype(object), pa.string()),
+        "agent_type": types,
+        "x": pa.array(scene.xy[row, col, 0]),
+        "y": pa.array(scene.xy[row, col, 1]),
+        "heading": pa.array(scene.heading[row, col]),
+        "speed": pa.array(scene.speed[row, col]),
+        "length": pa.array(scene.length[row]),
+        "width": pa.array(scene.width[row]),
+        "is_ego": pa.array(row == scene.ego if scene.ego >= 0 else np.zeros(n, bool)),
+    }
+    for key in sorted(scene.extra):
+        columns[key] = pa.array(scene.extra[key][row, col].astype(np.float32))
+    info = {
+        "schema_version": SCHEMA_VERSION,
+        "scene_id": scene_id,
+        "dt": scene.dt,
+        "frame0": scene.frame0,
+        "num_frames": scene.num_frames,
+        "ego": scene.ego,
+        "agents": {  # row order and per-agent constants, incl. agents without a valid frame
+            "agent_id": scene.agent_id.tolist(),
+            "agent_type": [AgentType(int(t)).label for t in scene.agent_type],
+            "length": scene.length.astype(np.float64).tolist(),
+            "width": scene.width.astype(np.float64).tolist(),
+        },
+        "extra": sorted(scene.extra),
+        "meta": scene.meta,
+    }
+    table = pa.table(columns)
+    return table.replace_schema_metadata({META_KEY: dumps(info).encode()})
+
+
+def write_scene(scene: Scene, path: Path, scene_id: str) -> int:
+    """Write one scene as one Parquet shard, atomically (temporary name, then rename). Returns rows."""
+    path = Path(path)
+    table = scene_table(scene, scene_id)
+    sink = pa.BufferOutputStream()
+    # zstd for size; no statistics-dependent wall clock anywhere, so bytes depend on content only.
+    pq.write_table(table, sink, compression="zstd", row_group_size=1 << 20, use_dictionary=["scene_id",
+                   "agent_type", "agent_id"])
+    atomic_write_bytes(path, sink.getvalue().to_pybytes())
+    return table.num_rows
+
+
+def _shard_info(path: Path) -> dict[str, Any]:
+    try:
+        kv = pq.read_schema(path).metadata or {}
+    except (OSError, pa.ArrowException) as e:
+        raise UserError(f"{path}: corrupt or unreadable Parquet shard ({_short(e)})") from None
+    if META_KEY not in kv:
+        raise UserError(f"{path}: not a simharness shard (no '{META_KEY.decode()}' key-value metadata)")
+    info = json.loads(kv[META_KEY])
+    if info.get("schema_version") != SCHEMA_VERSION:
+        raise UserError(f"{path}: shard schema version {info.get('schema_version')!r}; this simharness reads "
+                        f"version {SCHEMA_VERSION}")
+    return info
+
+
+def _short(e: BaseException) -> str:
+    return str(e).strip().splitlines()[0][:200] if str(e).strip() else type(e).__name__
+
+
+def read_scene(path: Path) -> Scene:
+    """One shard back to the `Scene` that was written (invalid entries as zeros). UserError if corrupt."""
+    path = Path(path)
+    info = _shard_info(path)
+    try:
+        table = pq.read_table(path)
+    except (OSError, pa.ArrowException) as e:
+        raise UserError(f"{path}: corrupt or unreadable Parquet shard ({_short(e)})") from None
+    agents = info["agents"]
+    ids = np.asarray(agents["agent_id"], dtype=object).astype(str)
+    n, t = len(ids), int(info["num_frames"])
+    try:
+        row_ids = table.column("agent_id").to_numpy(zero_copy_only=False).astype(str)
+        if len(row_ids) and n == 0:
+            raise ValueError("rows but an empty agent table")
+        order = np.argsort(ids, kind="stable")
+        row = order[np.clip(np.searchsorted(ids[order], row_ids), 0, max(n - 1, 0))]
+        col = table.column("frame").to_numpy().astype(np.int64) - int(info["frame0"])
+        if len(row_ids) and ((ids[row] != row_ids).any() or col.min() < 0 or col.max() >= t):
+            raise ValueError("rows do not match the shard's agent table")
+
+        def dense(name: str) -> np.ndarray:
+            out = np.zeros((n, t), np.float32)
+            out[row, col] = table.column(name).to_numpy()
+            return out
+
+        valid = np.zeros((n, t), bool)
+        valid[row, col] = True
+        xy = np.stack([dense("x"), dense("y")], -1)
+        return Scene(
+            xy=xy, heading=dense("heading"), speed=dense("speed"), valid=valid, agent_id=ids,
+            agent_type=agent_types_from_labels(agents["agent_type"]) if n else np.zeros(0, np.int8),
+            length=np.asarray(agents["length"], np.float32), width=np.asarray(agents["width"], np.float32),
+            dt=float(info["dt"]), ego=int(info["ego"]), frame0=int(info["frame0"]),
+            extra={k: dense(k) for k in info["extra"]}, meta=info["meta"],
+        )
+    except (KeyError, IndexError, ValueError, pa.ArrowException) as e:
+        raise UserError(f"{path}: corrupt shard ({_short(e)})") from None
+
+
+# ---------------------------------------------------------------------- manifest
+def shard_name(scene_id: str) -> str:
+    return f"{scene_id}.parquet"
+
+
+def shard_entry(path: Path, scene: Scene, scene_id: str, rows: int) -> dict[str, Any]:
+    """One manifest line for a written shard."""
+    return {"scene_id": scene_id, "file": Path(path).name, "rows": int(rows), "agents": scene.num_agents,
+            "frames": scene.num_frames, "sha256": file_sha256(path)}
+
+
+def describe_shard(path: Path) -> dict[str, Any]:
+    """Manifest entry of a shard already on disk (from its footer, no row reading), plus its `meta`.
+
+    Returns {scene_id, file, rows, agents, frames, sha256, meta}; UserError if unreadable.
+    """
+    path = Path(path)
+    info = _shard_info(path)
+    try:
+        rows = pq.read_metadata(path).num_rows
+    except (OSError, pa.ArrowException) as e:
+        raise UserError(f"{path}: corrupt or unreadable Parquet shard ({_short(e)})") from None
+    return {"scene_id": info["scene_id"], "file": path.name, "rows": int(rows),
+            "agents": len(info["agents"]["agent_id"]), "frames": int(info["num_frames"]),
+            "sha256": file_sha256(path), "meta": info["meta"]}
+
+
+def build_manifest(entries: Iterable[dict[str, Any]], info: dict[str, Any]) -> dict[str, Any]:
+    """Manifest content from shard entries (sorted by scene id) and the caller's info."""
+    scenes = sorted(entries, key=lambda e: e["scene_id"])
+    content = hashlib.sha256("".join(f"{e['file']}:{e['sha256']}\n" for e in scenes).encode()).hexdigest()
+    return {
+        "format": "simharness-dataset",
+        "schema_version": SCHEMA_VERSION,
+        "columns": list(BASE_COLUMNS),
+        "info": info,
+        "versions": software_versions(),
+        "num_scenes": len(scenes),
+        "rows": int(sum(e["rows"] for e in scenes)),
+        "content_hash": content,
+        "scenes": scenes,
+    }
+
+
+def write_manifest(out: Path, manifest: dict[str, Any]) -> Path:
+    path = Path(out) / MANIFEST
+    atomic_write_bytes(path, (dumps(manifest, indent=1) + "\n").encode())
+    return path
+
+
+def clean_temp_files(out: Path) -> list[Path]:
+    """Remove leftovers of interrupted writes (files named `.tmp-*`); returns what was removed."""
+    stale = sorted(Path(out).glob(TMP_PREFIX + "*"))
+    for p in stale:
+        with contextlib.suppress(OSError):
+            p.unlink()
+    return stale
+
+
+def write_dataset(scenes: Iterable[Scene], out: Path, info: dict[str, Any], overwrite: bool = False) -> Path:
+    """Shards and manifest in one go (importers, closed-loop episodes); returns the folder.
+
+    A scene's id is `meta["scene_id"]` when given, else `scene-{i:06d}`. The folder is built under a
+    temporary sibling name and renamed when complete. An existing non-empty `out` is refused unless
+    `overwrite` (then replaced only once the new one is complete).
+    """
+    out = Path(out)
+    if out.exists() and (not out.is_dir() or any(out.iterdir())) and not overwrite:
+        raise UserError(f"{out}: exists and is not empty; choose another output folder or remove it")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=TMP_PREFIX + out.name + ".", dir=out.parent))
+    try:
+        entries, seen = [], set()
+        for i, scene in enumerate(scenes):
+            scene_id = str(scene.meta.get("scene_id", f"scene-{i:06d}"))
+            if scene_id in seen:
+                raise ValueError(f"duplicate scene id {scene_id!r}")
+            seen.add(scene_id)
+            path = tmp / shard_name(scene_id)
+            rows = write_scene(scene, path, scene_id)
+            entries.append(shard_entry(path, scene, scene_id, rows))
+        write_manifest(tmp, build_manifest(entries, info))
+        if out.exists():
+            old = out.with_name(f"{TMP_PREFIX}{out.name}.old")
+            shutil.rmtree(old, ignore_errors=True)
+            os.replace(out, old)
+            os.replace(tmp, out)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.replace(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return out
+
+
+def read_manifest(path: Path) -> dict[str, Any]:
+    """`manifest.json` of a data set folder; UserError one-liners for the usual mistakes."""
+    path = Path(path)
+    if not path.exists():
+        raise UserError(f"{path}: data set folder not found")
+    if not path.is_dir():
+        raise UserError(f"{path}: expected a data set folder (with {MANIFEST}), got a file")
+    mpath = path / MANIFEST
+    if not mpath.is_file():
+        raise UserError(f"{mpath}: missing; expected a simharness data set folder (run `simharness generate` "
+                        f"or `simharness import` to make one)")
+    try:
+        manifest = json.loads(mpath.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise UserError(f"{mpath}: not valid JSON ({e})") from None
+    if not isinstance(manifest, dict) or manifest.get("format") != "simharness-dataset":
+        raise UserError(f"{mpath}: not a simharness data set manifest (key 'format' != 'simharness-dataset')")
+    if manifest.get("schema_version") != SCHEMA_VERSION:
+        raise UserError(f"{mpath}: key 'schema_version' is {manifest.get('schema_version')!r}; this simharness "
+                        f"reads version {SCHEMA_VERSION}")
+    return manifest
+
+
+# ---------------------------------------------------------------------- read side
+class Dataset:
+    """A data set folder, read lazily: `len`, iteration and `scene(i or id)` give `Scene`s.
+
+    Opening checks the manifest and every listed shard's footer (existence, schema version, row
+    count), so a missing or truncated shard is named up front.
+    """
+
+    def __init__(self, path: Path) -> None:
+        self.path = Path(path)
+        self.manifest: dict[str, Any] = read_manifest(self.path)
+        entries = self.manifest.get("scenes", [])
+        self.scene_ids: list[str] = [e["scene_id"] for e in entries]
+        self.shard_paths: list[Path] = [self.path / e["file"] for e in entries]
+        for entry, shard in zip(entries, self.shard_paths, strict=True):
+            if not shard.is_file():
+                raise UserError(f"{shard}: shard listed in {MANIFEST} is missing")
+            try:
+                rows = pq.read_metadata(shard).num_rows
+            except (OSError, pa.ArrowException) as e:
+                raise UserError(f"{shard}: corrupt or unreadable Parquet shard ({_short(e)})") from None
+            if rows != entry["rows"]:
+                raise UserError(f"{shard}: holds {rows} rows, {MANIFEST} says {entry['rows']}")
+        self._road: RoadGeometry | None = None
+        self._road_read = False
+
+    @property
+    def info(self) -> dict[str, Any]:
+        """What the writer recorded (source, scenario spec, seeds, config hash...)."""
+        return self.manifest.get("info", {})
+
+    @property
+    def road(self) -> RoadGeometry | None:
+        """Road geometry from the first shard's meta (shared by all scenes of a scenario), or None."""
+        if not self._road_read:
+            self._road_read = True
+            road = self.info.get("road")
+            if road is None and self.shard_paths:
+                road = _shard_info(self.shard_paths[0])["meta"].get("road")
+            self._road = RoadGeometry.from_dict(road) if road else None
+        return self._road
+
+    def __len__(self) -> int:
+        return len(self.scene_ids)
+
+    def __iter__(self) -> Iterator[Scene]:
+        for p in self.shard_paths:
+            yield read_scene(p)
+
+    def scene(self, key: int | str) -> Scene:
+        """Scene by position or by scene id."""
+        if isinstance(key, str):
+            if key not in self.scene_ids:
+                raise UserError(f"{self.path}: no scene {key!r} (it holds {len(self)} scenes)")
+            key = self.scene_ids.index(key)
+        if not -len(self) <= key < len(self):
+            raise UserError(f"{self.path}: scene index {key} out of range (it holds {len(self)} scenes)")
+        return read_scene(self.shard_paths[key])
+
+    def __repr__(self) -> str:
+        return f"Dataset({str(self.path)!r}, scenes={len(self)}, rows={self.manifest.get('rows')})"

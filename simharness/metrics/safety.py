@@ -1,0 +1,172 @@
+"""Safety of one agent (the ego) among the others: collisions, time-to-collision, near misses, gaps.
+
+All pure functions of Scene arrays with valid masks. Collisions are oriented-box
+overlaps (simharness.metrics.collisions), never a simulator's flag.
+
+Time-to-collision is computed by constant-velocity extrapolation of the two
+oriented boxes (headings held), sampled every `step` seconds up to `horizon`:
+the first sampled time at which the boxes overlap (resolution `step`), 0 when
+they overlap now, +inf when they do not within the horizon.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from simharness.metrics.collisions import boxes_overlap, collision_events
+from simharness.scene import AgentType
+
+
+def ego_contact(
+    xy: np.ndarray, heading: np.ndarray, length: np.ndarray, width: np.ndarray, valid: np.ndarray, ego: int,
+) -> np.ndarray:
+    """Whether each agent's box overlaps the ego's box, per frame.
+
+    xy (N, T, 2) m, heading (N, T) rad, length/width (N,) m, valid (N, T) -> (N, T) bool; the ego row is False.
+    """
+    n, t = valid.shape
+    out = np.zeros((n, t), bool)
+    if ego < 0:
+        return out
+    both = valid & valid[ego][None, :]
+    both[ego] = False
+    # Prune by bounding circles before the separating-axis test.
+    reach = 0.5 * np.hypot(length, width) + 0.5 * np.hypot(length[ego], width[ego])
+    dist = np.linalg.norm(xy - xy[ego][None], axis=-1)
+    rows, cols = np.nonzero(both & (dist <= reach[:, None]))
+    hit = boxes_overlap(xy[rows, cols], heading[rows, cols], length[rows], width[rows],
+                        xy[ego, cols], heading[ego, cols], length[ego], width[ego])
+    out[rows[hit], cols[hit]] = True
+    return out
+
+
+def spell_onsets(flag: np.ndarray) -> np.ndarray:
+    """First frame of each run of True along the last axis: (..., T) bool -> (..., T) bool."""
+    prev = np.concatenate([np.zeros_like(flag[..., :1]), flag[..., :-1]], -1)
+    return flag & ~prev
+
+
+def collisions_by_type(contact: np.ndarray, agent_type: np.ndarray) -> dict[str, int]:
+    """Distinct ego collisions (contact spells) by the other agent's type.
+
+    contact (N, T) bool from `ego_contact`, agent_type (N,) int8 -> {type label: count}, every type listed.
+    """
+    per_agent = spell_onsets(contact).sum(-1)  # (N,)
+    counts = np.bincount(agent_type.astype(int), weights=per_agent, minlength=len(AgentType))
+    return {t.label: int(counts[t]) for t in AgentType}
+
+
+def time_to_collision(
+    xy: np.ndarray, velocity: np.ndarray, heading: np.ndarray, length: np.ndarray, width: np.ndarray,
+    valid: np.ndarray, ego: int, horizon: float = 5.0, step: float = 0.1,
+) -> np.ndarray:
+    """Ego-to-agent time-to-collision by constant-velocity extrapolation of oriented boxes.
+
+    xy (N, T, 2) m, velocity (N, T, 2) m/s, heading (N, T) rad, length/width (N,) m, valid (N, T)
+    -> (N, T) float32 seconds: 0 if overlapping now, first sampled overlap time, +inf if none
+    within `horizon` (and for the ego row and invalid entries).
+    """
+    n, t = valid.shape
+    ttc = np.full((n, t), np.inf, np.float32)
+    if ego < 0:
+        return ttc
+    taus = np.arange(0.0, horizon + 1e-9, step)  # (K,)
+    both = valid & valid[ego][None, :]
+    both[ego] = False
+    rel_v = np.linalg.norm(velocity - velocity[ego][None], axis=-1)
+    reach = (0.5 * np.hypot(length, width) + 0.5 * np.hypot(length[ego], width[ego]))[:, None] + rel_v * horizon
+    dist = np.linalg.norm(xy - xy[ego][None], axis=-1)
+    rows, cols = np.nonzero(both & (dist <= reach))
+    if rows.size == 0:
+        return ttc
+    shape = (rows.size, taus.size)
+    pa = xy[rows, cols][:, None] + velocity[rows, cols][:, None] * taus[None, :, None]  # (P, K, 2)
+    pe = xy[ego, cols][:, None] + velocity[ego, cols][:, None] * taus[None, :, None]
+    hit = boxes_overlap(pa, np.broadcast_to(heading[rows, cols][:, None], shape),
+                        np.broadcast_to(length[rows][:, None], shape), np.broadcast_to(width[rows][:, None], shape),
+                        pe, np.broadcast_to(heading[ego, cols][:, None], shape),
+                        np.full(shape, length[ego]), np.full(shape, width[ego]))  # (P, K)
+    first = np.where(hit.any(-1), taus[np.argmax(hit, -1)], np.inf)
+    ttc[rows, cols] = first
+    return ttc
+
+
+def near_misses(ttc: np.ndarray, contact: np.ndarray, valid: np.ndarray, threshold: float = 1.5) -> np.ndarray:
+    """Near-miss events: spells of TTC < threshold (per agent) that never reach contact.
+
+    ttc (N, T) s, contact (N, T) bool, valid (N, T) -> (N, T) bool, True at the first frame of each near miss.
+    """
+    close = (ttc < threshold) & valid
+    onset = spell_onsets(close)
+    spell_id = np.cumsum(onset, -1) * close  # (N, T) 1-based id of the spell each close frame is in, 0 outside
+    n, t = close.shape
+    # A spell is spoiled if any of its frames is a contact: mark (agent, spell id) pairs.
+    spoiled = np.zeros((n, t + 1), bool)
+    r, c = np.nonzero(close & contact)
+    spoiled[r, spell_id[r, c]] = True
+    return onset & ~np.take_along_axis(spoiled, spell_id, -1)
+
+
+def min_gap(
+    xy: np.ndarray, heading: np.ndarray, length: np.ndarray, width: np.ndarray, valid: np.ndarray, ego: int,
+) -> np.ndarray:
+    """Gap between the ego's box and each agent's box, per frame (separating-axis lower bound).
+
+    The largest separation along the four box axes: exact when the boxes are separated face to face,
+    a lower bound corner to corner; 0 when they overlap.
+    xy (N, T, 2), heading (N, T), length/width (N,), valid (N, T) -> (N, T) float32 m, +inf where not both valid.
+    """
+    n, t = valid.shape
+    gap = np.full((n, t), np.inf, np.float32)
+    if ego < 0:
+        return gap
+    both = valid & valid[ego][None, :]
+    both[ego] = False
+    rows, cols = np.nonzero(both)
+    ha, hb = heading[rows, cols], heading[ego, cols]
+    axes = np.stack([np.stack([np.cos(h), np.sin(h)], -1) for h in (ha, ha + np.pi / 2, hb, hb + np.pi / 2)], 1)
+    centre = np.einsum("pkd,pd->pk", axes, xy[ego, cols] - xy[rows, cols])  # (P, 4) ego centre along each axis
+
+    def half_extent(h: np.ndarray, le: np.ndarray, wi: np.ndarray) -> np.ndarray:
+        """Projection radius of a box of heading h (P,) onto each of the 4 axes -> (P, 4)."""
+        fwd = np.stack([np.cos(h), np.sin(h)], -1)
+        left = np.stack([-np.sin(h), np.cos(h)], -1)
+        return (np.abs(np.einsum("pkd,pd->pk", axes, fwd)) * le[:, None] / 2
+                + np.abs(np.einsum("pkd,pd->pk", axes, left)) * wi[:, None] / 2)
+
+    sep = np.abs(centre) - half_extent(ha, length[rows], width[rows]) - half_extent(
+        hb, np.full(rows.size, length[ego]), np.full(rows.size, width[ego]))
+    gap[rows, cols] = np.maximum(sep.max(-1), 0.0)
+    return gap
+
+
+def background_collisions(
+    xy: np.ndarray, heading: np.ndarray, length: np.ndarray, width: np.ndarray, valid: np.ndarray, ego: int = -1,
+) -> np.ndarray:
+    """Distinct collisions among background agents (pairs without the ego).
+
+    Shapes as `ego_contact` -> (E, 3) int (frame, row_i, row_j), i < j, counted once per contact spell.
+    """
+    events = collision_events(xy, heading, length, width, valid)
+    keep = (events[:, 1] != ego) & (events[:, 2] != ego)
+    return events[keep]
+
+
+def ego_at_fault(onsets: np.ndarray, xy: np.ndarray, velocity: np.ndarray, ego: int) -> np.ndarray:
+    """Which ego collisions the ego caused: at the onset, the ego's own velocity contributes more of the
+    closing speed along the line between the centres than the other's (so being rear-ended or cut into
+    while holding course is not the ego's fault; running into a slower or stopped agent is).
+
+    onsets (N, T) bool (first frames of contact, e.g. `spell_onsets(ego_contact(...))`), xy (N, T, 2) m,
+    velocity (N, T, 2) m/s -> (N, T) bool, a subset of onsets.
+    """
+    rows, cols = np.nonzero(onsets)
+    out = np.zeros_like(onsets, dtype=bool)
+    if ego < 0 or rows.size == 0:
+        return out
+    u = xy[rows, cols] - xy[ego, cols]
+    u = u / np.maximum(np.linalg.norm(u, axis=-1, keepdims=True), 1e-9)  # ego -> other
+    ego_part = np.einsum("pd,pd->p", velocity[ego, cols], u)  # ego moving towards the other
+    other_part = -np.einsum("pd,pd->p", velocity[rows, cols], u)  # other moving towards the ego
+    out[rows, cols] = ego_part > other_part
+    return out

@@ -1,0 +1,65 @@
+"""Name registry of predictors: the one door from the harness to predictor/.
+
+`load_predictor("const-vel" | "traphic" | "traphic-b" | ... | RUN_FOLDER)` returns a `Predictor`.
+Add a predictor with one line in PREDICTORS (name -> zero-argument factory).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+from simharness.errors import UserError
+from simharness.scene import Predictor
+
+
+def _const_vel() -> Predictor:
+    from predictor.models.const_vel import ConstantVelocity
+
+    return ConstantVelocity()
+
+
+def _shipped(name: str) -> Callable[[], Predictor]:
+    def load() -> Predictor:
+        from predictor.predict import ModelPredictor
+
+        return ModelPredictor.shipped(name)
+
+    return load
+
+
+PREDICTORS: dict[str, Callable[[], Predictor]] = {
+    "const-vel": _const_vel,
+    "traphic": _shipped("traphic"),
+}
+
+
+def available() -> list[str]:
+    """Registered names (shipped ablation weights are added when their files exist)."""
+    from predictor.predict import WEIGHTS
+
+    extra = [p.stem for p in sorted(WEIGHTS.glob("traphic-*.pt")) if p.with_suffix(".json").is_file()]
+    return [*PREDICTORS, *[e for e in extra if e not in PREDICTORS]]
+
+
+def load_predictor(name_or_run: str | Path) -> Predictor:
+    """A predictor by registered name, shipped weights name, or a run folder from `simharness train`."""
+    key = str(name_or_run)
+    if key in PREDICTORS:
+        return PREDICTORS[key]()
+    if key in available():
+        return _shipped(key)()
+    path = Path(key)
+    if path.is_dir():
+        from predictor.predict import ModelPredictor
+
+        return ModelPredictor.from_run(path)
+    raise UserError(f"unknown predictor {key!r}; expected one of {', '.join(available())} or a run folder "
+                    "written by `simharness train`")
+
+
+def split_scenes(scene_ids: list[str]) -> dict[str, list[str]]:
+    """The train/val/test split by scene that training used (re-exported for evaluation)."""
+    from predictor.split import split_scenes as split
+
+    return split(scene_ids)

@@ -1,0 +1,280 @@
+"""Lane-free mixed traffic on arrays: the state, and the vectorised rules that move it.
+
+Frame: x along the carriageway (direction of travel), y lateral, + left,
+0 on the carriageway centre line. Every rule works on (n,) state arrays and
+(n, n) pairwise arrays (row i = the agent deciding, column j = the other), so
+nothing loops over agents or pairs in Python.
+
+Footprints are handled as the axis-aligned boxes that contain each agent's
+rotated rectangle (half extents hx, hy), so keeping those boxes apart keeps the
+oriented boxes that the collision metric tests apart too.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+VEHICLE, CROSSING, WALKING = 0, 1, 2  # kinds: drives; crosses the road; walks along its edge
+
+B_EMERGENCY = 8.0  # m/s^2: decelerations beyond this are reported as emergency stops
+GAP_MIN = 0.25  # m: bumper gap that the hard speed clamp always keeps (absorbs box growth when turning)
+CUT_IN_HORIZON = 1.0  # s: a neighbour drifting into one's band within this counts as a leader
+PED_CLAIM_S = 1.5  # s: a crossing pedestrian claims the strip it walks through in this time
+LAT_GAIN = 0.8  # 1/s: lateral speed per metre of offset from the target
+LAT_ACC = 1.5  # m/s^2: how fast the lateral speed may change
+LAT_COST = 0.35  # (m/s)/m: score lost per metre of lateral move
+LOOKAHEAD = 80.0  # m: gaps beyond this count as free road when choosing a lateral offset
+
+
+@dataclasses.dataclass
+class TrafficState:
+    """All agents as (n,) arrays, rows sorted by `uid` (appends only; removals keep order).
+
+    uid (int64) never reused; agent_id (str); agent_type (int8); kind (int8: VEHICLE, CROSSING, WALKING);
+    is_ego (bool); x, y (m); vx, vy (m/s, along and across the road); length, width (m);
+    v0 (m/s desired speed); a_max, b_comf (m/s^2); headway (s); s0 (m); vy_max (m/s);
+    switch_margin (m/s of gain needed to change lateral target); y_target (m); cross_dir (+1 walks to +y).
+    """
+
+    uid: np.ndarray
+    agent_id: np.ndarray
+    agent_type: np.ndarray
+    kind: np.ndarray
+    is_ego: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    vx: np.ndarray
+    vy: np.ndarray
+    length: np.ndarray
+    width: np.ndarray
+    v0: np.ndarray
+    a_max: np.ndarray
+    b_comf: np.ndarray
+    headway: np.ndarray
+    s0: np.ndarray
+    vy_max: np.ndarray
+    switch_margin: np.ndarray
+    y_target: np.ndarray
+    cross_dir: np.ndarray
+
+    _DTYPES = {"uid": np.int64, "agent_id": object, "agent_type": np.int8, "kind": np.int8, "is_ego": bool}
+
+    @classmethod
+    def empty(cls) -> TrafficState:
+        return cls(**{f.name: np.zeros(0, cls._DTYPES.get(f.name, np.float64)) for f in dataclasses.fields(cls)})
+
+    @property
+    def n(self) -> int:
+        return int(self.uid.size)
+
+    def append(self, **cols: np.ndarray) -> None:
+        """Add rows (each column an (m,) array; every field required)."""
+        for f in dataclasses.fields(self):
+            new = np.asarray(cols[f.name], dtype=self._DTYPES.get(f.name, np.float64)).reshape(-1)
+            setattr(self, f.name, np.concatenate([getattr(self, f.name), new]))
+
+    def keep(self, mask: np.ndarray) -> None:
+        """Drop the rows where mask is False."""
+        for f in dataclasses.fields(self):
+            setattr(self, f.name, getattr(self, f.name)[mask])
+
+    def headings(self) -> np.ndarray:
+        """(n,) radians CCW from +x: direction of motion; crossing pedestrians face their crossing."""
+        walk = np.where(self.vy != 0, np.sign(self.vy), self.cross_dir) * (np.pi / 2)
+        return np.where(self.kind == CROSSING, walk, np.arctan2(self.vy, self.vx))
+
+
+def half_extents(length: np.ndarray, width: np.ndarray, heading: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(n,) footprints and headings -> (hx, hy) (n,) half sizes of the axis-aligned box around each."""
+    c, s = np.abs(np.cos(heading)), np.abs(np.sin(heading))
+    return 0.5 * (length * c + width * s), 0.5 * (length * s + width * c)
+
+
+@dataclasses.dataclass(frozen=True)
+class Pairwise:
+    """(n, n) relations, row i to column j.
+
+    dx, dy:   position of j relative to i (m)
+    gap:      bumper-to-bumper gap along x (m), |dx| minus half lengths; negative when the boxes overlap in x
+    lat_gap:  side-to-side gap along y (m); negative when the boxes overlap in y
+    """
+
+    dx: np.ndarray
+    dy: np.ndarray
+    gap: np.ndarray
+    lat_gap: np.ndarray
+
+
+def pairwise(x: np.ndarray, y: np.ndarray, hx: np.ndarray, hy: np.ndarray) -> Pairwise:
+    """(n,) centres and half extents -> `Pairwise` (n, n)."""
+    dx = x[None, :] - x[:, None]
+    dy = y[None, :] - y[:, None]
+    return Pairwise(dx, dy, np.abs(dx) - (hx[:, None] + hx[None, :]), np.abs(dy) - (hy[:, None] + hy[None, :]))
+
+
+def lateral_claims(s: TrafficState, hy: np.ndarray, walking_now: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Lateral interval each agent occupies now or will soon: (lo, hi) (n,) m.
+
+    Vehicles extend their box by their lateral drift over CUT_IN_HORIZON; a crossing
+    pedestrian that is walking (walking_now) claims the strip it crosses in PED_CLAIM_S.
+    """
+    ext = np.where(s.kind == CROSSING, walking_now * s.cross_dir * (s.v0 * PED_CLAIM_S + 0.3),
+                   s.vy * CUT_IN_HORIZON)
+    return s.y - hy + np.minimum(ext, 0.0), s.y + hy + np.maximum(ext, 0.0)
+
+
+def find_leaders(
+    pw: Pairwise, y: np.ndarray, hy: np.ndarray, claim_lo: np.ndarray, claim_hi: np.ndarray, sees: np.ndarray,
+    margin: float = 0.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Lane-free leader: nearest agent ahead whose box comes within `margin` (m) of one's width band, or
+    whose claim does (too narrow a gap to pass beside counts as the same band).
+
+    sees: (n, n) bool, row i takes column j into account. Returns leader (n,) int row and
+    gap (n,) bumper gap in m (inf where there is no leader; >= 0.01 where boxes already overlap).
+    """
+    band = pw.lat_gap < margin
+    claimed = (claim_lo[None, :] < (y + hy + margin)[:, None]) & (claim_hi[None, :] > (y - hy - margin)[:, None])
+    cand = sees & (pw.dx > 0) & (band | (claimed & (pw.gap > 0)))
+    g = np.where(cand, np.maximum(pw.gap, 0.01), np.inf)
+    lead = np.argmin(g, axis=1) if g.size else np.zeros(0, int)
+    return lead, g[np.arange(len(lead)), lead]
+
+
+def idm_acceleration(v: np.ndarray, v0: np.ndarray, a: np.ndarray, b: np.ndarray, headway: np.ndarray,
+                     s0: np.ndarray, gap: np.ndarray, v_lead: np.ndarray, coolness: float = 0.99) -> np.ndarray:
+    """IDM on bumper gaps, softened by the constant-acceleration heuristic (Treiber and Kesting's ACC model).
+
+    (n,) arrays in SI units -> (n,) m/s^2; inf gap means free road. Plain IDM brakes far too hard when
+    someone cuts in close but faster (a lane-free road does this all the time); the heuristic only
+    brakes as hard as keeping the gap open against a non-accelerating leader needs.
+    """
+    free = 1.0 - (v / np.maximum(v0, 0.1)) ** 4
+    s_star = s0 + np.maximum(0.0, v * headway + v * (v - v_lead) / (2.0 * np.sqrt(a * b)))
+    lead = np.isfinite(gap)
+    g = np.where(lead, np.maximum(gap, 0.01), 1.0)
+    a_idm = a * (free - np.where(lead, (s_star / g) ** 2, 0.0))
+    closing = np.where(lead, np.maximum(v - np.where(lead, v_lead, v), 0.0), 0.0)
+    a_cah = -closing**2 / (2.0 * g)
+    soft = (1 - coolness) * a_idm + coolness * (a_cah + b * np.tanh((a_idm - a_cah) / b))
+    return np.maximum(np.where(a_idm >= a_cah, a_idm, soft), -B_EMERGENCY * 1.5)
+
+
+def clamp_to_leaders(v_new: np.ndarray, leader: np.ndarray, gap: np.ndarray, dt: float, free: np.ndarray,
+                     vx_fixed: np.ndarray) -> np.ndarray:
+    """Largest speeds (n,) that keep every bumper gap >= GAP_MIN after the step.
+
+    free: (n,) rows exempt (a commanded ego). vx_fixed: (n,) rows that do not move along x
+    (crossing pedestrians). Iterates along leader chains until nothing changes.
+    """
+    v = np.where(vx_fixed, 0.0, v_new)
+    has = np.isfinite(gap) & ~free
+    slack = np.where(has, (gap - GAP_MIN) / dt, np.inf)
+    for _ in range(max(1, v.size)):
+        lim = np.maximum(v[leader] + slack, 0.0) if v.size else v
+        new = np.where(has, np.minimum(v, lim), v)
+        if np.array_equal(new, v):
+            break
+        v = new
+    return v
+
+
+def side_windows(pw: Pairwise, vx: np.ndarray, s0: np.ndarray, sees: np.ndarray) -> np.ndarray:
+    """(n, n) bool: j is beside i, or close enough ahead/behind that i must not move into its band.
+
+    The margin is the follower's safe gap: half its standstill gap, half a second of its
+    speed, plus one second of closing speed.
+    """
+    behind = pw.dx < 0
+    fs0 = np.where(behind, s0[None, :], s0[:, None])
+    fv = np.where(behind, vx[None, :], vx[:, None])
+    closing = np.where(behind, vx[None, :] - vx[:, None], vx[:, None] - vx[None, :])
+    margin = 0.5 * fs0 + 0.5 * fv + np.maximum(closing, 0.0)
+    window = sees & (pw.gap < margin)
+    np.fill_diagonal(window, False)
+    return window
+
+
+def lateral_room(pw: Pairwise, window: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Free lateral distance (n,) to the nearest box in the side window on the left (+y) and right (m)."""
+    clear = pw.lat_gap >= -1e-9  # boxes in one's own band are ahead or behind, not beside
+    left = np.where(window & clear & (pw.dy > 0), pw.lat_gap, np.inf).min(axis=1, initial=np.inf)
+    right = np.where(window & clear & (pw.dy < 0), pw.lat_gap, np.inf).min(axis=1, initial=np.inf)
+    return left, right
+
+
+def band_gaps(pw_rows: Pairwise, cand_y: np.ndarray, hy_rows: np.ndarray, claim_lo: np.ndarray,
+              claim_hi: np.ndarray, ahead: np.ndarray, vx: np.ndarray, margin: float = 0.0,
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """Gap ahead and leader speed for each row at each candidate lateral offset.
+
+    pw_rows: Pairwise restricted to R deciding rows (R, n); cand_y (R, C) m; hy_rows (R,);
+    claims (n,); ahead (R, n) bool; margin (m) as in `find_leaders`. Returns gap (R, C) m (inf: free) and lead speed (R, C) m/s.
+    """
+    lo = (cand_y - hy_rows[:, None] - margin)[:, :, None]  # (R, C, 1)
+    hi = (cand_y + hy_rows[:, None] + margin)[:, :, None]
+    overlap = (claim_lo[None, None, :] < hi) & (claim_hi[None, None, :] > lo) & ahead[:, None, :]
+    g = np.where(overlap, np.maximum(pw_rows.gap, 0.0)[:, None, :], np.inf)  # (R, C, n)
+    j = np.argmin(g, axis=2) if g.shape[2] else np.zeros(g.shape[:2], int)
+    gap = np.take_along_axis(g, j[..., None], axis=2)[..., 0] if g.shape[2] else np.full(g.shape[:2], np.inf)
+    return gap, np.where(np.isfinite(gap), vx[j] if g.shape[2] else 0.0, np.inf)
+
+
+def offset_scores(gap: np.ndarray, v_lead: np.ndarray, v0: np.ndarray, s0: np.ndarray, headway: np.ndarray,
+                  cand_y: np.ndarray, y: np.ndarray, kerb_bias: np.ndarray, kerb_y: float) -> np.ndarray:
+    """Score (R, C) in m/s of each candidate offset: speed one could hold there, minus the cost of moving.
+
+    gap, v_lead, cand_y (R, C); v0, s0, headway, y, kerb_bias (R,) (m/s per carriageway width
+    that slow vehicles give up by staying away from the kerb at kerb_y).
+    """
+    free = gap > LOOKAHEAD
+    hold = np.where(free, v0[:, None], v_lead + np.maximum(gap - s0[:, None], 0.0) / (headway[:, None] + 0.5))
+    hold = np.minimum(hold, v0[:, None])
+    kerb = kerb_bias[:, None] * np.abs(cand_y - kerb_y) / max(abs(kerb_y) * 2, 1e-6)
+    return hold - LAT_COST * np.abs(cand_y - y[:, None]) - kerb
+
+
+def safe_lateral_moves(move: np.ndarray, vx: np.ndarray, length: np.ndarray, width: np.ndarray,
+                       hy: np.ndarray, up: np.ndarray, down: np.ndarray, dt: float) -> np.ndarray:
+    """Largest of (move, move/2, 0) (n,) m whose box, turned to the new heading, stays within the room.
+
+    Turning grows the box on both sides, so the new left edge must rise by at most `up` and the
+    right edge drop by at most `down` (n,) m; hy (n,) is the current half width. Moving 0 straightens
+    the agent, which never grows its box.
+    """
+    opts = np.stack([move, 0.5 * move, np.zeros_like(move)])  # (3, n)
+    _, hy_new = half_extents(length, width, np.arctan2(opts / dt, vx))
+    grow = hy_new - hy
+    ok = (opts + grow <= up + 1e-9) & (grow - opts <= down + 1e-9)
+    ok[2] = True
+    return opts[np.argmax(ok, axis=0), np.arange(move.size)]
+
+
+def crossing_clear(ped: np.ndarray, s: TrafficState, hx: np.ndarray, hy: np.ndarray, sees: np.ndarray,
+                   half_width: float) -> np.ndarray:
+    """Gap acceptance of crossing pedestrians: (P,) bool, the strip ahead is safe to walk into now.
+
+    ped: (P,) rows of crossing pedestrians; sees (P, n). A vehicle blocks the strip the pedestrian
+    claims (PED_CLAIM_S of walking) when it is level with the pedestrian, or approaching and
+    unable to stop comfortably short of it. Off the carriageway the strip is always clear.
+    """
+    d = s.cross_dir[ped]
+    reach = d * (s.v0[ped] * PED_CLAIM_S + 0.3)
+    lo = np.minimum(s.y[ped], s.y[ped] + reach) - hy[ped]
+    hi = np.maximum(s.y[ped], s.y[ped] + reach) + hy[ped]
+    veh = (s.kind != CROSSING)[None, :] & sees
+    lat = (s.y - hy)[None, :] < hi[:, None]
+    lat &= (s.y + hy)[None, :] > lo[:, None]
+    front_j = (s.x + hx)[None, :]
+    rear_j = (s.x - hx)[None, :]
+    near_p, far_p = (s.x[ped] - hx[ped])[:, None], (s.x[ped] + hx[ped])[:, None]
+    level = (front_j > near_p - 0.3) & (rear_j < far_p + 0.3)
+    dist = near_p - front_j
+    v = s.vx[None, :]
+    stop = v**2 / (2.0 * s.b_comf[None, :]) + 0.5 * s.s0[None, :] + 0.5 * v
+    approaching = (dist > 0) & (dist < stop)
+    blocked = (veh & lat & (level | approaching)).any(axis=1)
+    on_road = (lo < half_width) & (hi > -half_width)
+    return ~(blocked & on_road)

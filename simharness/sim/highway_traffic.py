@@ -1,0 +1,354 @@
+"""The traffic on one straight carriageway: spawning, the step, removal, the ego.
+
+`Traffic` owns a `TrafficState` (arrays) and a numpy Generator; each `step`
+applies the vectorised rules of `highway_dynamics` to all agents at once.
+Vehicles and pedestrians walking along the edge enter at the upstream end
+(Poisson arrivals at the configured flows; an arrival waits in a queue until
+there is room) and leave at the downstream end; crossing pedestrians appear
+on a sidewalk and leave at the other. Agent ids are never reused.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from simharness.scene import AgentType
+from simharness.sim import highway_dynamics as dyn
+from simharness.sim.highway_agents import PARAMS
+from simharness.sim.highway_dynamics import CROSSING, VEHICLE, WALKING, TrafficState
+
+EDGE_GAP = 0.2  # m kept between a vehicle and the carriageway edge
+PED_SPACING = 1.5  # m along the road between two crossing pedestrians at their start
+QUEUE_MAX = 200  # arrivals waiting for room; beyond this new arrivals are dropped (and counted)
+
+
+class Traffic:
+    """Agents on a straight carriageway from x = 0 to `length`, y in [-width/2, width/2] (+y left).
+
+    config: the env config (see `DenseTrafficEnv.default_config`): road_length, road_width, lanes,
+    sidewalk_width, speed_limit, demand {type label: veh/h}, crossing_rate, walking_rate (per hour),
+    walking_speed, behaviour_spread, speed_dev, lateral_resolution, min_gap_lat, lane_discipline,
+    decision_period, ego {type, insert_at, speed, reaction} or None.
+    """
+
+    def __init__(self, config: dict[str, Any], seed: int, road: Any = None,
+                 color_of: Callable[[AgentType, bool], str] | None = None) -> None:
+        self.config = config
+        self.road = road
+        self.rng = np.random.default_rng(seed)
+        self.length = float(config["road_length"])
+        self.half_width = 0.5 * float(config["road_width"])
+        self.sidewalk = float(config["sidewalk_width"])
+        self.speed_limit = float(config["speed_limit"])
+        self.min_gap_lat = float(config["min_gap_lat"])
+        self.state = TrafficState.empty()
+        self.time = 0.0
+        self.steps = 0
+        self.next_uid = 0
+        self.dropped = 0
+        self.emergency_stops = 0
+        self.queue: list[tuple[int, int]] = []  # (agent type, kind) waiting to enter
+        self.ego_reaction = (config.get("ego") or {}).get("reaction", "reactive")
+        self._color_of = color_of or (lambda t, ego: "#7f7f7f")
+        flows = {AgentType.parse(k): float(v) for k, v in config["demand"].items() if float(v) > 0}
+        self.flows = [(int(t), VEHICLE, q) for t, q in sorted(flows.items())]
+        if config["walking_rate"] > 0:
+            self.flows.append((int(AgentType.PEDESTRIAN), WALKING, float(config["walking_rate"])))
+        self.next_arrival = np.array([self.rng.exponential(3600.0 / q) for _, _, q in self.flows])
+        self.next_crossing = (self.rng.exponential(3600.0 / config["crossing_rate"])
+                              if config["crossing_rate"] > 0 else np.inf)
+        self.lane_centres = self._lane_centres()
+
+    # ------------------------------------------------------------------ lookup
+    def row_of(self, uid: int, missing: int | None = None) -> int:
+        """Row of an agent by uid (rows are sorted by uid); KeyError, or `missing`, when it left."""
+        r = int(np.searchsorted(self.state.uid, uid))
+        if r < self.state.n and self.state.uid[r] == uid:
+            return r
+        if missing is not None:
+            return missing
+        raise KeyError(f"agent uid {uid} is no longer on the road")
+
+    def headings(self) -> np.ndarray:
+        return self.state.headings()
+
+    def color_of(self, agent_type: AgentType, is_ego: bool) -> str:
+        return self._color_of(agent_type, is_ego)
+
+    @property
+    def ego_row(self) -> int:
+        hit = np.flatnonzero(self.state.is_ego)
+        return int(hit[0]) if hit.size else -1
+
+    def _lane_centres(self) -> np.ndarray | None:
+        lanes = int(self.config["lanes"])
+        if lanes < 2 or self.config["lane_discipline"] < 0.5:
+            return None
+        w = 2 * self.half_width / lanes
+        return -self.half_width + w * (np.arange(lanes) + 0.5)
+
+    def _grid(self) -> np.ndarray:
+        """(C,) candidate lateral offsets across the carriageway (m)."""
+        if self.lane_centres is not None:
+            return self.lane_centres
+        res = max(float(self.config["lateral_resolution"]), 0.2)
+        return np.arange(-self.half_width, self.half_width + 1e-9, res)
+
+    # ------------------------------------------------------------------ new agents
+    def _new_columns(self, agent_type: int, kind: int, is_ego: bool = False) -> dict[str, Any]:
+        """Per-agent constants for one new agent: footprint, its driver's parameters (behaviour spread)."""
+        c = self.config
+        t = agent_type
+        spread = 0.0 if is_ego else float(c["behaviour_spread"])
+        aggr = self.rng.uniform(-1.0, 1.0) * spread  # + aggressive, - conservative
+        dev = 0.0 if is_ego else float(c["speed_dev"]) * float(np.clip(self.rng.normal(), -2, 2))
+        if t == AgentType.PEDESTRIAN:
+            v0 = float(c["walking_speed"]) * (1 + 0.15 * float(np.clip(self.rng.normal(), -2, 2)))
+        else:
+            v0 = min(PARAMS["v_max"][t], self.speed_limit * PARAMS["speed_factor"][t]) * (1 + dev) * (1 + 0.05 * aggr)
+        uid = self.next_uid
+        self.next_uid += 1
+        return dict(
+            uid=uid, agent_id="ego" if is_ego else f"{AgentType(t).label}_{uid}", agent_type=t, kind=kind,
+            is_ego=is_ego, length=PARAMS["length"][t], width=PARAMS["width"][t], v0=v0,
+            a_max=PARAMS["a_max"][t] * (1 + 0.25 * aggr), b_comf=PARAMS["b_comf"][t],
+            headway=PARAMS["headway"][t] * (1 - 0.35 * aggr), s0=PARAMS["s0"][t] * (1 - 0.3 * aggr),
+            vy_max=PARAMS["vy_max"][t], switch_margin=0.4 * (1 - 0.6 * aggr), cross_dir=0.0,
+        )
+
+    def _place(self, cols: dict[str, Any], x: float, cand_y: np.ndarray) -> tuple[float, float] | None:
+        """Lateral offset and speed at which a new agent fits at x without crowding anyone, or None.
+
+        cand_y (C,) m. Needs its standstill gap to every agent ahead in its band (with the lateral
+        minimum gap) and the follower's safe gap to it behind; speed as a follower of that band.
+        """
+        s = self.state
+        hx, hy = 0.5 * cols["length"], 0.5 * cols["width"]
+        if s.n == 0:
+            y = cand_y[int(self.rng.integers(cand_y.size))]
+            return float(y), float(cols["v0"])
+        ohx, ohy = dyn.half_extents(s.length, s.width, s.headings())
+        band = ((s.y - ohy)[None, :] < (cand_y + hy + self.min_gap_lat)[:, None]) & \
+               ((s.y + ohy)[None, :] > (cand_y - hy - self.min_gap_lat)[:, None])  # (C, n)
+        ahead = (s.x - ohx) - (x + hx)  # (n,) bumper gap to agents ahead
+        behind = (x - hx) - (s.x + ohx)
+        follower_need = s.s0 + s.vx * s.headway
+        ok_each = np.where(ahead >= 0, ahead >= cols["s0"], behind >= follower_need)
+        ok_each &= (ahead >= 0) | (behind >= 0)
+        feasible = ~(band & ~ok_each[None, :]).any(axis=1)
+        if not feasible.any():
+            return None
+        lead_gap = np.where(band & (ahead >= 0)[None, :], ahead[None, :], np.inf)
+        j = np.argmin(lead_gap, axis=1)
+        g = lead_gap[np.arange(cand_y.size), j]
+        v = np.where(np.isfinite(g), s.vx[j] + np.maximum(g - cols["s0"], 0) / cols["headway"], cols["v0"])
+        v = np.minimum(v, cols["v0"])
+        score = np.where(feasible, v + self.rng.uniform(0, 1.0, cand_y.size), -np.inf)
+        c = int(np.argmax(score))
+        return float(cand_y[c]), float(v[c])
+
+    def _vehicle_offsets(self, width: float) -> np.ndarray:
+        g = self._grid()
+        return g[np.abs(g) + 0.5 * width <= self.half_width - EDGE_GAP]
+
+    def _walk_offsets(self) -> np.ndarray:
+        hy = 0.5 * PARAMS["width"][AgentType.PEDESTRIAN]
+        return np.array([self.half_width - hy - 0.15, -self.half_width + hy + 0.15])
+
+    def _add(self, cols: dict[str, Any], x: float, y: float, v: float) -> None:
+        self.state.append(**cols, x=x, y=y, vx=v if cols["kind"] != CROSSING else 0.0, vy=0.0, y_target=y)
+
+    def try_insert(self, agent_type: int, kind: int, x: float | None = None, is_ego: bool = False,
+                   speed: float | None = None) -> bool:
+        """Put one agent on the road at x (default: entering at x = 0); False when there is no room."""
+        cols = self._new_columns(agent_type, kind, is_ego)
+        x = 0.5 * cols["length"] if x is None else x
+        cand = self._walk_offsets() if kind == WALKING else self._vehicle_offsets(cols["width"])
+        placed = self._place(cols, x, cand)
+        if placed is None:
+            self.next_uid -= 1  # nothing was created; keep uids dense and deterministic
+            return False
+        y, v = placed
+        self._add(cols, x, y, v if speed is None else min(v, speed))
+        return True
+
+    def spawn_crossing(self) -> bool:
+        """A pedestrian appears on a sidewalk at a random x and will cross; False if too close to another."""
+        x = float(self.rng.uniform(0.05, 0.95) * self.length)
+        direction = 1.0 if self.rng.random() < 0.5 else -1.0
+        crossing = self.state.kind == CROSSING
+        if np.any(np.abs(self.state.x[crossing] - x) < PED_SPACING):
+            return False
+        cols = self._new_columns(int(AgentType.PEDESTRIAN), CROSSING)
+        cols["cross_dir"] = direction
+        self._add(cols, x, -direction * self._kerb_offset(), 0.0)
+        return True
+
+    def _kerb_offset(self) -> float:
+        """|y| of a pedestrian waiting on the sidewalk (m)."""
+        return self.half_width + max(0.5 * self.sidewalk, 0.5)
+
+    def prefill(self, density_speed_share: float = 0.6) -> None:
+        """Fill the road at each flow's density (flow / speed, speed a share of the desired speed)."""
+        todo = []
+        for t, kind, q in self.flows:
+            v = (float(self.config["walking_speed"]) if kind == WALKING else
+                 min(PARAMS["v_max"][t], self.speed_limit * PARAMS["speed_factor"][t]) * density_speed_share)
+            todo += [(t, kind)] * int(self.rng.poisson(q / 3600.0 / max(v, 0.5) * self.length))
+        for i in self.rng.permutation(len(todo)):  # reset only: one vectorised placement per agent
+            t, kind = todo[i]
+            self.try_insert(t, kind, x=float(self.rng.uniform(0.0, self.length)))
+
+    def insert_ego(self, agent_type: AgentType, speed: float) -> bool:
+        """The ego enters running traffic a quarter of the way along the road (or the nearest room)."""
+        for frac in (0.25, 0.3, 0.2, 0.35, 0.15, 0.4, 0.1, 0.45, 0.05):
+            if self.try_insert(int(agent_type), VEHICLE, x=frac * self.length, is_ego=True, speed=speed):
+                return True
+        return False
+
+    def _arrivals(self) -> None:
+        for k, (t, kind, q) in enumerate(self.flows):
+            while self.next_arrival[k] <= self.time:
+                if len(self.queue) < QUEUE_MAX:
+                    self.queue.append((t, kind))
+                else:
+                    self.dropped += 1
+                self.next_arrival[k] += self.rng.exponential(3600.0 / q)
+        waiting, self.queue = self.queue, []
+        blocked: set[tuple[int, int]] = set()
+        for t, kind in waiting:  # per arrival, not per agent pair: each attempt is vectorised
+            if (t, kind) in blocked or not self.try_insert(t, kind):
+                blocked.add((t, kind))  # keep arrival order within a type
+                self.queue.append((t, kind))
+        while self.next_crossing <= self.time:
+            self.spawn_crossing()
+            self.next_crossing += self.rng.exponential(3600.0 / self.config["crossing_rate"])
+
+    # ------------------------------------------------------------------ the step
+    def step(self, dt: float, ego_command: tuple[float, float] | None = None) -> list[tuple[str, str]]:
+        """Advance all agents by dt seconds. ego_command: (acceleration m/s^2, lateral velocity m/s, + left)
+        or None (the ego drives like the background). Returns [(event kind, agent id)]."""
+        self._arrivals()
+        s = self.state
+        events: list[tuple[str, str]] = []
+        if s.n:
+            events = self._move(s, dt, ego_command)
+        self._remove_departed()
+        self.time += dt
+        self.steps += 1
+        return events
+
+    def _sees(self, s: TrafficState) -> tuple[np.ndarray, np.ndarray]:
+        """(n, n) whom each agent takes into account, longitudinally and laterally (ego reaction applied)."""
+        n = s.n
+        sees = ~np.eye(n, dtype=bool)
+        lat = sees.copy()
+        ego = np.flatnonzero(s.is_ego)
+        if ego.size:
+            bg = ~s.is_ego
+            if self.ego_reaction == "ignore":
+                sees[np.ix_(bg, ego)] = False
+                lat[np.ix_(bg, ego)] = False
+            elif self.ego_reaction == "cut_in":
+                lat[np.ix_(bg, ego)] = False  # re-added below for side-by-side only
+        return sees, lat
+
+    def _move(self, s: TrafficState, dt: float, ego_command: tuple[float, float] | None) -> list[tuple[str, str]]:
+        n = s.n
+        commanded = s.is_ego & (ego_command is not None)
+        heading = s.headings()
+        hx, hy = dyn.half_extents(s.length, s.width, heading)
+        pw = dyn.pairwise(s.x, s.y, hx, hy)
+        sees, sees_lat = self._sees(s)
+
+        ped = np.flatnonzero(s.kind == CROSSING)
+        walking_now = np.zeros(n, bool)
+        if ped.size:
+            walking_now[ped] = dyn.crossing_clear(ped, s, hx, hy, sees[ped], self.half_width)
+        lo, hi = dyn.lateral_claims(s, hy, walking_now)
+
+        # Longitudinal: IDM on the lane-free leader, then a hard clamp that keeps every gap open.
+        leader, gap = dyn.find_leaders(pw, s.y, hy, lo, hi, sees, 0.5 * self.min_gap_lat)
+        acc = dyn.idm_acceleration(s.vx, s.v0, s.a_max, s.b_comf, s.headway, s.s0, gap, s.vx[leader])
+        if commanded.any():
+            a_ego = float(np.clip(ego_command[0], -B_EGO, PARAMS["a_max"][s.agent_type[commanded][0]]))
+            acc = np.where(commanded, a_ego, acc)
+        v_max = PARAMS["v_max"][s.agent_type]
+        v_new = np.clip(s.vx + acc * dt, 0.0, v_max)
+        v_new = dyn.clamp_to_leaders(v_new, leader, gap, dt, commanded, s.kind == CROSSING)
+        hard = (s.vx - v_new > dyn.B_EMERGENCY * dt + 1e-9) & ~commanded
+        events = [("emergency_stop", str(a)) for a in s.agent_id[hard]]
+        self.emergency_stops += int(hard.sum())
+
+        # Lateral: targets chosen by the agents, speeds limited by the room beside them.
+        window = dyn.side_windows(pw, s.vx, s.s0, sees_lat)
+        if self.ego_reaction == "cut_in" and s.is_ego.any():
+            window |= (~s.is_ego)[:, None] & s.is_ego[None, :] & (pw.gap < self.min_gap_lat)
+        room_l, room_r = dyn.lateral_room(pw, window)
+        self._decide_targets(s, pw, hy, lo, hi, sees, room_l, room_r, commanded, dt)
+        speed_share = np.clip(s.vx / 4.0, 0.0, 1.0)  # no sideways motion without forward speed
+        vy_lim = s.vy_max * speed_share
+        vy_des = np.clip(dyn.LAT_GAIN * (s.y_target - s.y), -vy_lim, vy_lim)
+        vy = s.vy + np.clip(vy_des - s.vy, -dyn.LAT_ACC * dt, dyn.LAT_ACC * dt)
+        vy = np.where(s.kind == CROSSING, walking_now * s.cross_dir * s.v0, np.where(s.kind == WALKING, 0.0, vy))
+        if commanded.any():
+            vy = np.where(commanded, np.clip(ego_command[1], -vy_lim, vy_lim), vy)
+        move = vy * dt
+        up = np.maximum(0.0, 0.5 * (room_l - self.min_gap_lat))
+        down = np.maximum(0.0, 0.5 * (room_r - self.min_gap_lat))
+        is_veh = s.kind == VEHICLE
+        edge_up = np.maximum(0.0, self.half_width - EDGE_GAP * ~commanded - (s.y + hy))
+        edge_down = np.maximum(0.0, self.half_width - EDGE_GAP * ~commanded + (s.y - hy))
+        up = np.where(commanded, edge_up, np.where(is_veh, np.minimum(up, edge_up), up))
+        down = np.where(commanded, edge_down, np.where(is_veh, np.minimum(down, edge_down), down))
+        move = np.clip(move, -down, up)
+        turning = (s.kind != CROSSING) & ~commanded
+        move = np.where(turning, dyn.safe_lateral_moves(move, v_new, s.length, s.width, hy, up, down, dt), move)
+
+        s.x = s.x + v_new * dt
+        s.y = s.y + move
+        s.vx = v_new
+        s.vy = move / dt
+        return events
+
+    def _decide_targets(self, s: TrafficState, pw: dyn.Pairwise, hy: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                        sees: np.ndarray, room_l: np.ndarray, room_r: np.ndarray, commanded: np.ndarray,
+                        dt: float) -> None:
+        """Re-choose the lateral target of a rotating share of the vehicles (each every decision_period)."""
+        every = max(1, int(round(float(self.config["decision_period"]) / dt)))
+        rows = np.flatnonzero((s.kind == VEHICLE) & ~commanded & (s.uid % every == self.steps % every))
+        if rows.size == 0:
+            return
+        grid = self._grid()
+        cand = np.concatenate([np.broadcast_to(grid, (rows.size, grid.size)),
+                               s.y[rows, None], s.y_target[rows, None]], axis=1)  # (R, C + 2)
+        sub = dyn.Pairwise(pw.dx[rows], pw.dy[rows], pw.gap[rows], pw.lat_gap[rows])
+        ahead = sees[rows] & (pw.dx[rows] > 0)
+        gap, v_lead = dyn.band_gaps(sub, cand, hy[rows], lo, hi, ahead, s.vx, 0.5 * self.min_gap_lat)
+        slow = s.v0[rows] < 0.6 * self.speed_limit
+        scores = dyn.offset_scores(gap, v_lead, s.v0[rows], s.s0[rows], s.headway[rows], cand, s.y[rows],
+                                   np.where(slow, 1.5, 0.0), self.half_width)
+        inside = np.abs(cand) + hy[rows, None] <= self.half_width - EDGE_GAP
+        shift = cand - s.y[rows, None]
+        reach = (shift <= room_l[rows, None] - self.min_gap_lat) & (shift >= -(room_r[rows, None] - self.min_gap_lat))
+        ok = inside & reach
+        ok[:, -2] = self.lane_centres is None  # staying put is always allowed without lane discipline
+        ok[:, -1] = inside[:, -1]  # the current plan stays valid while blocked
+        scores = np.where(ok, scores, -np.inf)
+        best = np.argmax(scores, axis=1)
+        gain = scores[np.arange(rows.size), best] - scores[:, -1]
+        switch = gain > s.switch_margin[rows]
+        s.y_target[rows] = np.where(switch, cand[np.arange(rows.size), best], s.y_target[rows])
+
+    def _remove_departed(self) -> None:
+        s = self.state
+        gone = (s.x - 0.5 * s.length > self.length) & (s.kind != CROSSING)
+        gone |= (s.kind == CROSSING) & (s.cross_dir * s.y > self._kerb_offset())
+        if gone.any():
+            s.keep(~gone)
+
+
+B_EGO = 8.0  # m/s^2: hardest braking an ego command may ask for

@@ -1,0 +1,340 @@
+"""libsumo backend: dense, heterogeneous, lane-less traffic with pedestrians and a harness-driven ego.
+
+One simulation per process (libsumo's limit): a second live `SumoSimulator` raises `SimulatorError`.
+The network is built once per simulator (it depends on the spec only); routes are written per seed
+into a private temp folder. The effective SUMO seed is `spec.seed + seed`.
+
+Recorded per agent and frame: centre xy (SUMO reports the front bumper), heading of motion (SUMO's
+angle, degrees clockwise from north, follows lateral speed in the sub-lane model), speed, type and
+footprint, and extras "sim_heading" (SUMO's lane-aligned box heading, what its own collision check
+uses) and "lateral_offset" (m from the carriageway centre line, positive left).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import shutil
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from simharness.errors import SimulatorError
+from simharness.scenario import ScenarioSpec
+from simharness.scene import AgentType
+from simharness.sim.base import EgoCommand, Event, Frame, RoadGeometry
+from simharness.sim.sumo_demand import KINEMATICS, agent_type_of, routes_xml
+from simharness.sim.sumo_ego import GhostEgo, ego_start
+from simharness.sim.sumo_net import Network, build_network
+from simharness.sim.sumo_pedestrians import Crossings
+
+os.environ.setdefault("LIBSUMO_AS_TRACI", "quiet")  # libsumo prints a pyarrow ABI note to stdout otherwise
+import libsumo  # noqa: E402
+
+_LIVE: list[SumoSimulator] = []  # the one simulator allowed to hold libsumo in this process
+EGO_ID = "ego"
+DEFAULT_LC_MODE = 1621
+DEFAULT_SPEED_MODE = 31
+
+
+def sumo_version() -> str:
+    return str(libsumo.getVersion()[1])
+
+
+class SumoSimulator:
+    """`Simulator` over libsumo; see the module doc. Use one per process and close it."""
+
+    def __init__(self, spec: ScenarioSpec) -> None:
+        if spec.backend != "sumo":
+            raise ValueError(f"SumoSimulator needs a sumo scenario, got backend {spec.backend!r}")
+        self.spec = spec
+        self.dt = spec.dt
+        self._folder = Path(tempfile.mkdtemp(prefix="simharness_sumo_"))
+        self.net: Network = build_network(spec.road, self._folder / "net")
+        self.road: RoadGeometry = self.net.road
+        self._running = False
+        self.seed: int | None = None
+        self._lane_info: dict[str, tuple[float, float]] = {}  # lane id -> (offset from carriageway centre, angle)
+
+    # ------------------------------------------------------------------ lifecycle
+    def reset(self, seed: int) -> Frame:
+        """Start SUMO with seed `spec.seed + seed`, run the warm-up, return the frame at t = 0."""
+        self.close()
+        if _LIVE:
+            raise SimulatorError(
+                f"scenario {self.spec.name}, seed {seed}: another SumoSimulator ({_LIVE[0].spec.name}, seed "
+                f"{_LIVE[0].seed}) is running in this process; libsumo allows one simulation per process "
+                "(close it first, or use one process per simulation)")
+        self.seed = int(seed)
+        sumo_seed = self.spec.seed + self.seed
+        run = self._folder / f"seed{self.seed}"
+        run.mkdir(exist_ok=True)
+        end = self.spec.warmup + self.spec.duration + 3600.0
+        rou = run / "routes.rou.xml"
+        rou.write_text(routes_xml(self.spec, self.net, end))
+        args = ["sumo", "-n", str(self.net.net_file), "-r", str(rou), "--seed", str(sumo_seed),
+                "--step-length", f"{self.spec.step_length}", "--collision.mingap-factor", "0",
+                "--collision.action", "warn", "--collision.check-junctions", "true",
+                "--time-to-teleport", "120", "--no-step-log", "true", "--no-warnings", "true",
+                "--duration-log.disable", "true", "--default.action-step-length", f"{self.spec.step_length}",
+                "--max-depart-delay", "30", "--threads", "1", "--log", str(run / "sumo.log"),
+                "--error-log", str(run / "sumo.err")]
+        if self.spec.sublane.lateral_resolution > 0:
+            args += ["--lateral-resolution", f"{self.spec.sublane.lateral_resolution}"]
+        try:
+            libsumo.start(args)
+        except Exception as e:  # libsumo raises its own TraCIException / FatalTraCIError
+            raise SimulatorError(f"scenario {self.spec.name}, seed {seed}: SUMO failed to start: "
+                                 f"{self._sumo_said(e)}") from None
+        _LIVE.append(self)
+        self._running = True
+        self._types: dict[str, tuple[int, float, float]] = {}  # vehicle id -> (AgentType, length, width)
+        self._contacts: set[tuple[str, str]] = set()
+        self._events: list[Event] = []
+        self._t = 0.0
+        self._ego_controlled = False
+        self._ego_in_sumo = False
+        self._cut_in: set[str] = set()
+        self._lane_info = self._read_lanes()
+        rng = np.random.default_rng([sumo_seed, 7])
+        self._crossings = Crossings(self.spec, self.net, rng)
+        self._ghost: GhostEgo | None = None
+        self._ego_due = self.spec.ego.enabled
+        warm_steps = int(round(self.spec.warmup / self.spec.step_length))
+        self._advance(warm_steps, recording=False)
+        self._events.clear()
+        return self._frame()
+
+    def step(self, ego_command: EgoCommand | None = None) -> Frame:
+        """Advance one recorded frame (spec.steps_per_frame SUMO steps); the ego follows `ego_command`."""
+        self._require_running()
+        self._advance(self.spec.steps_per_frame, recording=True, command=ego_command)
+        self._t += self.dt
+        return self._frame(ego_command, moved=True)
+
+    def advance_unrecorded(self, frames: int) -> None:
+        """Step `frames` recorded frames' worth of SUMO steps without reading agents ("raw stepping")."""
+        self._require_running()
+        for _ in range(frames):
+            self._advance(self.spec.steps_per_frame, recording=False)
+            self._t += self.dt
+
+    def close(self) -> None:
+        """End the SUMO run (the network folder stays until the object is garbage collected)."""
+        if self._running:
+            self._running = False
+            try:
+                libsumo.close()
+            except Exception:  # already dead: nothing to release
+                pass
+            finally:
+                if self in _LIVE:
+                    _LIVE.remove(self)
+
+    def __del__(self) -> None:
+        try:
+            self.close()
+            shutil.rmtree(self._folder, ignore_errors=True)
+        except Exception:  # interpreter shutdown: modules may be gone
+            pass
+
+    def __enter__(self) -> SumoSimulator:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ stepping
+    def _require_running(self) -> None:
+        if not self._running:
+            raise SimulatorError(f"scenario {self.spec.name}: SumoSimulator is not running (call reset first)")
+
+    def _sumo_said(self, e: BaseException) -> str:
+        text = str(e).strip()
+        err = self._folder / f"seed{self.seed}" / "sumo.err"
+        if err.exists():
+            lines = [ln for ln in err.read_text(errors="replace").splitlines() if ln.strip()]
+            if lines:
+                text = lines[-1].strip()
+        return text or type(e).__name__
+
+    def _advance(self, steps: int, recording: bool, command: EgoCommand | None = None) -> None:
+        """SUMO steps with per-step bookkeeping (ego, crossing pedestrians, collisions, teleports)."""
+        sl = self.spec.step_length
+        for k in range(steps):
+            if recording or self._ego_due:
+                self._control_ego(command, sl)
+            self._crossings.step(libsumo, sl)
+            try:
+                libsumo.simulationStep()
+            except Exception as e:
+                self.close()
+                raise SimulatorError(f"scenario {self.spec.name}, seed {self.seed}: SUMO died at "
+                                     f"t={libsumo_time_safe():.1f} s: {self._sumo_said(e)}") from None
+            self._collect_events(self._t + (k + 1) * sl)
+        if not recording:
+            self._crossings.mark()
+
+    def _collect_events(self, t: float) -> None:
+        """Collisions (first step of each contact only) and teleports of the last SUMO step."""
+        now = set()
+        for c in libsumo.simulation.getCollisions():
+            pair = (c.collider, c.victim)
+            now.add(pair)
+            if pair not in self._contacts:
+                self._events.append(Event("collision", round(t, 6), self._crossings.public_id(c.collider),
+                                          self._crossings.public_id(c.victim),
+                                          f"{c.type} {c.colliderType}/{c.victimType} lane {c.lane}"))
+        self._contacts = now
+        for vid in libsumo.simulation.getStartingTeleportIDList():
+            self._events.append(Event("teleport", round(t, 6), self._crossings.public_id(vid)))
+
+    # ------------------------------------------------------------------ ego
+    def _control_ego(self, command: EgoCommand | None, sl: float) -> None:
+        spec = self.spec.ego
+        now = libsumo.simulation.getTime()
+        if self._ego_due and now >= self.spec.warmup + spec.insert_at - 1e-9:
+            self._ego_due = False
+            self._insert_ego()
+        if self._ghost is not None:
+            return  # the ghost moves once per frame in _frame()
+        if not self._ego_in_sumo or EGO_ID not in self._present_ids():
+            return
+        if command is None:
+            if self._ego_controlled:  # hand the ego back to SUMO's own models
+                libsumo.vehicle.setSpeed(EGO_ID, -1)
+                libsumo.vehicle.setSpeedMode(EGO_ID, DEFAULT_SPEED_MODE)
+                libsumo.vehicle.setLaneChangeMode(EGO_ID, DEFAULT_LC_MODE)
+                self._ego_controlled = False
+        else:
+            if not self._ego_controlled:
+                libsumo.vehicle.setSpeedMode(EGO_ID, 0)  # the harness alone decides (it may collide)
+                libsumo.vehicle.setLaneChangeMode(EGO_ID, 0)
+                self._ego_controlled = True
+            t = AgentType.parse(spec.type)
+            _, _, vmax, accel, decel, _, vlat, _ = KINEMATICS[t]
+            a = float(np.clip(command.acceleration, -2.0 * decel, accel))
+            v = float(np.clip(libsumo.vehicle.getSpeed(EGO_ID) + a * sl, 0.0, vmax))
+            libsumo.vehicle.setSpeed(EGO_ID, v)
+            lat_v = float(np.clip(command.lateral_velocity, -vlat, vlat))
+            if lat_v != 0.0:
+                lane = libsumo.vehicle.getLaneID(EGO_ID)
+                half = libsumo.lane.getWidth(lane) / 2 - libsumo.vehicle.getWidth(EGO_ID) / 2
+                lat = float(np.clip(libsumo.vehicle.getLateralLanePosition(EGO_ID) + lat_v * sl, -half, half))
+                libsumo.vehicle.setLateralLanePosition(EGO_ID, lat)
+        if self.spec.ego.reaction == "cut_in":
+            self._update_cut_in()
+
+    def _insert_ego(self) -> None:
+        """Put the ego into running traffic at a free lateral spot on the first entry carriageway."""
+        t = AgentType.parse(self.spec.ego.type)
+        cw, pos = ego_start(self.net)
+        if self.spec.ego.reaction == "ignore":  # invisible to SUMO, so every background agent ignores it
+            self._ghost = GhostEgo(self.spec, cw, pos, t)
+            return
+        libsumo.vehicle.add(EGO_ID, f"r_{cw.edge}" if f"r_{cw.edge}" in self.net.routes else
+                            next(r for r, e in self.net.routes.items() if e[0] == cw.edge),
+                            typeID=f"{self.spec.ego.type}__ego", depart="now", departLane="0",
+                            departPos=f"{pos:.2f}", departSpeed=f"{self.spec.ego.speed:.2f}")
+        libsumo.vehicle.setColor(EGO_ID, (255, 0, 0, 255))
+        self._ego_in_sumo = True
+
+    def _update_cut_in(self) -> None:
+        """Background vehicles within 50 m of the ego stop yielding laterally and push into its gaps."""
+        if EGO_ID not in self._present_ids():
+            return
+        ex, ey = libsumo.vehicle.getPosition(EGO_ID)
+        near = set()
+        for vid in libsumo.vehicle.getIDList():
+            if vid != EGO_ID and not self._crossings.is_pedestrian(vid):
+                x, y = libsumo.vehicle.getPosition(vid)
+                if (x - ex) ** 2 + (y - ey) ** 2 < 2500.0:
+                    near.add(vid)
+        for vid in near - self._cut_in:
+            libsumo.vehicle.setParameter(vid, "laneChangeModel.lcCooperative", "0")
+            libsumo.vehicle.setParameter(vid, "laneChangeModel.lcPushy", "1")
+            libsumo.vehicle.setParameter(vid, "laneChangeModel.lcAssertive", "5")
+        self._cut_in = near | {v for v in self._cut_in if v in self._present_ids()}
+
+    def _present_ids(self) -> set[str]:
+        return set(libsumo.vehicle.getIDList())
+
+    # ------------------------------------------------------------------ reading
+    def _read_lanes(self) -> dict[str, tuple[float, float]]:
+        """Lane id -> (its centre's offset from the carriageway centre, + left; direction, rad CCW from +x)."""
+        info = {}
+        for lane in libsumo.lane.getIDList():
+            shape = np.asarray(libsumo.lane.getShape(lane))
+            d = shape[-1] - shape[0]
+            edge = libsumo.lane.getEdgeID(lane)
+            if lane.startswith(":"):
+                offset = 0.0
+            else:
+                n = libsumo.edge.getLaneNumber(edge)
+                idx = int(lane.rsplit("_", 1)[1])
+                offset = (idx - (n - 1) / 2) * libsumo.lane.getWidth(lane)
+            info[lane] = (offset, math.atan2(d[1], d[0]))
+        return info
+
+    def _learn_types(self, ids: tuple[str, ...]) -> None:
+        for vid in ids:
+            if vid not in self._types:
+                vt = libsumo.vehicle.getTypeID(vid)
+                self._types[vid] = (int(agent_type_of(vt)), libsumo.vehicle.getLength(vid),
+                                    libsumo.vehicle.getWidth(vid))
+
+    def _frame(self, command: EgoCommand | None = None, moved: bool = False) -> Frame:
+        """Every agent now (plain getters: as fast as subscriptions in libsumo, see bench)."""
+        ids = libsumo.vehicle.getIDList()
+        self._learn_types(ids)
+        n = len(ids)
+        g = libsumo.vehicle
+        front = np.array([g.getPosition(v) for v in ids], dtype=np.float64).reshape(n, 2)
+        angle = np.array([g.getAngle(v) for v in ids], dtype=np.float64)
+        speed = np.array([g.getSpeed(v) for v in ids], dtype=np.float64)
+        lanes = [g.getLaneID(v) for v in ids]
+        lat = np.array([g.getLateralLanePosition(v) for v in ids], dtype=np.float64)
+        tl = np.array([self._types[v] for v in ids], dtype=np.float64).reshape(n, 3)
+        info = np.array([self._lane_info.get(ln, (0.0, np.nan)) for ln in lanes], dtype=np.float64).reshape(n, 2)
+        heading = np.radians(90.0 - angle)
+        heading = np.arctan2(np.sin(heading), np.cos(heading))
+        sim_heading = np.where(np.isnan(info[:, 1]), heading, info[:, 1])
+        # Centre of SUMO's own (lane-aligned) box, so boxes at sim_heading reproduce its collision geometry.
+        xy = front - np.stack([np.cos(sim_heading), np.sin(sim_heading)], -1) * (tl[:, 1:2] / 2)
+        lateral = info[:, 0] + lat
+        agent_id = np.array([self._crossings.public_id(v) for v in ids], dtype=object)
+        heading, speed = self._crossings.override_motion(ids, heading, speed, lateral, self.dt)
+        ego = -1
+        if self._ghost is not None:
+            if moved:
+                self._ghost.advance(command, self.dt, xy, heading, speed, tl[:, 1], tl[:, 2], agent_id)
+                self._events += [Event("collision", round(self._t, 6), EGO_ID, other, "ghost ego overlap")
+                                 for other in self._ghost.new_contacts]
+            gx = self._ghost.state()
+            agent_id = np.append(agent_id, EGO_ID)
+            xy = np.vstack([xy, gx["xy"][None]])
+            heading, sim_heading = np.append(heading, gx["heading"]), np.append(sim_heading, gx["heading"])
+            speed, lateral = np.append(speed, gx["speed"]), np.append(lateral, gx["lateral"])
+            tl = np.vstack([tl, [[gx["type"], gx["length"], gx["width"]]]])
+            ego = n
+        elif EGO_ID in ids:
+            ego = ids.index(EGO_ID)
+        return Frame(
+            t=round(self._t, 6), agent_id=agent_id.astype(str), agent_type=tl[:, 0].astype(np.int8),
+            xy=xy.astype(np.float32), heading=heading.astype(np.float32), speed=speed.astype(np.float32),
+            length=tl[:, 1].astype(np.float32), width=tl[:, 2].astype(np.float32), ego=ego,
+            extra={"sim_heading": sim_heading.astype(np.float32), "lateral_offset": lateral.astype(np.float32)},
+            events=tuple(self._drain_events()),
+        )
+
+    def _drain_events(self) -> list[Event]:
+        out, self._events = self._events, []
+        return out
+
+
+def libsumo_time_safe() -> float:
+    try:
+        return float(libsumo.simulation.getTime())
+    except Exception:
+        return float("nan")

@@ -1,0 +1,106 @@
+"""Where the ego enters, and the "ignore" ego: a harness-integrated agent that SUMO never sees.
+
+With `ego.reaction = "ignore"` no background agent may react to the ego, which SUMO cannot express
+per vehicle; so the ego is not a SUMO vehicle at all. It moves along its entry carriageway's line
+(straight on through an intersection) with the type's kinematic limits: by the command, or, with
+no command, by IDM car-following on the agents ahead in its lateral band (the background-model
+reference). Its overlaps with other agents are reported as collision events.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from simharness.metrics.collisions import boxes_overlap
+from simharness.scenario import ScenarioSpec
+from simharness.scene import DEFAULT_FOOTPRINT, AgentType
+from simharness.sim.base import EgoCommand
+from simharness.sim.sumo_net import Carriageway, Network
+
+IDM_HEADWAY = 1.2  # s
+IDM_GAP = 2.0  # m
+IDM_DELTA = 4.0
+
+
+def ego_start(net: Network) -> tuple[Carriageway, float]:
+    """Entry carriageway and distance along it where the ego enters (a fifth in, at most 60 m)."""
+    cw = net.entries[0]
+    return cw, float(min(0.2 * cw.length, 60.0))
+
+
+class GhostEgo:
+    """Kinematic ego on a straight line: position s (m) along `cw`, lateral offset (m, + left), speed."""
+
+    def __init__(self, spec: ScenarioSpec, cw: Carriageway, pos: float, agent_type: AgentType) -> None:
+        from simharness.sim.sumo_demand import KINEMATICS
+
+        self.cw, self.s, self.lat, self.v = cw, pos, 0.0, spec.ego.speed
+        self.type = agent_type
+        _, _, self.vmax, self.accel, self.decel, _, self.vlat, _ = KINEMATICS[agent_type]
+        self.length, self.width = DEFAULT_FOOTPRINT[agent_type]
+        self.heading = float(np.arctan2(cw.direction[1], cw.direction[0]))
+        self.lat_v = 0.0
+        self.new_contacts: list[str] = []
+        self._contacts: set[str] = set()
+        self._placed = False
+
+    def _frame_coords(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(n, 2) world centres -> (n,) along-line and (n,) lateral (+ left) coordinates of the ego's line."""
+        rel = xy - self.cw.start
+        return rel @ self.cw.direction, self.cw.centre_offset - rel @ self.cw.right
+
+    def place(self, xy: np.ndarray, width: np.ndarray) -> None:
+        """On entry: the lateral spot with the most clearance to agents within 15 m along the road."""
+        s, lat = self._frame_coords(xy)
+        half = self.cw.width / 2 - self.width / 2
+        cand = np.linspace(-half, half, 31)
+        near = np.abs(s - self.s) < 15.0
+        if near.any():
+            gap = np.abs(cand[:, None] - lat[near][None]) - width[near][None] / 2  # (31, m)
+            self.lat = float(cand[np.argmax(gap.min(1))])
+        self._placed = True
+
+    def advance(self, command: EgoCommand | None, dt: float, xy: np.ndarray, heading: np.ndarray,
+                speed: np.ndarray, length: np.ndarray, width: np.ndarray, ids: np.ndarray) -> None:
+        """One recorded frame of motion given the other agents now: xy (n, 2); heading, speed, length, width,
+        ids (n,)."""
+        if not self._placed:
+            self.place(xy, width)
+        s, lat = self._frame_coords(xy)
+        if command is None:  # IDM on the nearest agent ahead that overlaps the ego's lateral band
+            band = np.abs(lat - self.lat) < (width + self.width) / 2
+            gaps = s - length / 2 - (self.s + self.length / 2)
+            ahead = band & (gaps > -0.5)
+            a = self.accel * (1 - (self.v / self.vmax) ** IDM_DELTA)
+            if ahead.any():
+                k = np.flatnonzero(ahead)[np.argmin(gaps[ahead])]
+                dv = self.v - speed[k]
+                s_star = IDM_GAP + self.v * IDM_HEADWAY + self.v * dv / (2 * np.sqrt(self.accel * self.decel))
+                a -= self.accel * (max(s_star, 0.0) / max(gaps[k], 0.1)) ** 2
+            lat_v = 0.0
+        else:
+            a, lat_v = command.acceleration, command.lateral_velocity
+        a = float(np.clip(a, -2.0 * self.decel, self.accel))
+        v_new = float(np.clip(self.v + a * dt, 0.0, self.vmax))
+        self.s += 0.5 * (self.v + v_new) * dt
+        self.v = v_new
+        half = self.cw.width / 2 - self.width / 2
+        lat_v = float(np.clip(lat_v, -self.vlat, self.vlat))
+        new_lat = float(np.clip(self.lat + lat_v * dt, -half, half))
+        self.lat_v = (new_lat - self.lat) / dt
+        self.lat = new_lat
+        self.heading = float(np.arctan2(self.cw.direction[1], self.cw.direction[0]) +
+                             np.arctan2(self.lat_v, max(self.v, 1e-3)))
+        # Overlaps with the background (first frame of each contact only).
+        me = self.state()
+        hit = boxes_overlap(me["xy"][None], np.full(len(xy), me["heading"]), np.full(len(xy), self.length),
+                            np.full(len(xy), self.width), xy, heading, length, width) if len(xy) else np.zeros(0, bool)
+        now = set(ids[hit].tolist())
+        self.new_contacts = sorted(now - self._contacts)
+        self._contacts = now
+
+    def state(self) -> dict[str, float | np.ndarray]:
+        c = self.cw
+        xy = c.start + c.direction * self.s + c.right * (c.centre_offset - self.lat)
+        return {"xy": xy, "heading": self.heading, "speed": float(np.hypot(self.v, self.lat_v)),
+                "lateral": self.lat, "type": float(int(self.type)), "length": self.length, "width": self.width}

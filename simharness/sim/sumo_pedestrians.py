@@ -1,0 +1,214 @@
+"""Crossing pedestrians that sub-lane traffic sees: small standing vehicles the harness walks across.
+
+Why not SUMO's own pedestrians: on a shared carriageway or at unsignalised crossings, sub-lane
+vehicles judge crossing conflicts from the lane centre and hit them (issue #2: tens of collisions
+per 400 s). Here a crossing pedestrian is a SUMO vehicle of the "pedestrian" vType standing on the
+carriageway (speed 0), moved sideways by the harness at walking speed. Every vehicle's sub-lane
+model treats it as an obstacle in its lateral band, and the pedestrian steps into the next band
+only when no vehicle there would reach it within `GAP_TIME` (gap acceptance, as people do).
+On a two-way road it crosses one carriageway, then the other (a new SUMO vehicle, same public id).
+Pedestrians walking along the road are ordinary flows of the same vType (sumo_demand.py).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from simharness.scenario import ScenarioSpec
+from simharness.sim.sumo_net import Carriageway, Network
+
+GAP_TIME = 3.0  # s: a vehicle closer than this (plus a margin) to the next band blocks a step
+MARGIN = 0.4  # m: lateral clearance kept to vehicles when stepping
+CURB = 0.35  # m: a pedestrian stands this far inside the carriageway edge
+
+
+@dataclasses.dataclass
+class Crosser:
+    public: str
+    vid: str
+    cw: Carriageway  # carriageway it is crossing now
+    pos: float  # metres along cw from its start (centre line of the crossing)
+    lat: float  # current offset from cw centre, + left
+    target: float  # offset where this carriageway's crossing ends
+    then: Carriageway | None  # the opposite carriageway still to cross
+    prev_lat: float = 0.0
+    waited: float = 0.0
+
+
+def _opposite(net: Network, cw: Carriageway) -> Carriageway | None:
+    """The carriageway of the other direction on the same road (shares cw's left edge)."""
+    for o in net.entries:
+        if np.allclose(o.start, cw.end) and np.allclose(o.end, cw.start):
+            return o
+    if cw.edge.endswith("_in"):  # intersection arms: the outbound edge of the same arm
+        return Carriageway(cw.edge[:-3] + "_out", cw.end, cw.start, cw.width, cw.centre_offset)
+    return None
+
+
+class Crossings:
+    """Poisson arrivals of crossing pedestrians and their walk across, driven once per SUMO step."""
+
+    def __init__(self, spec: ScenarioSpec, net: Network, rng: np.random.Generator) -> None:
+        self.rate = spec.pedestrians.crossing_rate * spec.demand_scale / 3600.0  # per second
+        self.speed = spec.pedestrians.speed
+        self.net, self.rng = net, rng
+        self.ped_type = "pedestrian__1"
+        self.active: list[Crosser] = []
+        self.waiting: list[Crosser] = []  # on the sidewalk, not yet in SUMO
+        self._count = 0
+        self._next = rng.exponential(1.0 / self.rate) if self.rate > 0 else math.inf
+        self._by_vid: dict[str, Crosser] = {}
+        self._routes: set[str] = set()
+        self._clock = 0.0
+        self._internal: list[str] | None = None
+        self.walkers_prefix = "pedestrian."
+
+    # ------------------------------------------------------------------ ids
+    def public_id(self, vid: str) -> str:
+        c = self._by_vid.get(vid)
+        return c.public if c is not None else vid
+
+    def is_pedestrian(self, vid: str) -> bool:
+        return vid in self._by_vid or vid.startswith(self.walkers_prefix)
+
+    def override_motion(self, ids: tuple[str, ...], heading: np.ndarray, speed: np.ndarray, lateral: np.ndarray,
+                        dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """Crossers move sideways while SUMO reports them standing: record their real motion."""
+        if not self._by_vid:
+            return heading, speed
+        heading, speed = heading.copy(), speed.copy()
+        for i, vid in enumerate(ids):
+            c = self._by_vid.get(vid)
+            if c is None:
+                continue
+            d = c.cw.direction
+            side = 1.0 if c.target > c.lat or (c.target >= c.prev_lat and c.lat == c.target) else -1.0
+            heading[i] = math.atan2(d[0], -d[1]) if side > 0 else math.atan2(-d[0], d[1])
+            speed[i] = abs(c.lat - c.prev_lat) / dt
+            c.prev_lat = c.lat
+        return heading, speed
+
+    def mark(self) -> None:
+        """Forget motion so far (after unrecorded steps), so the next recorded speed covers one frame."""
+        for c in self.active:
+            c.prev_lat = c.lat
+
+    # ------------------------------------------------------------------ stepping
+    def step(self, libsumo: object, dt: float) -> None:
+        """One SUMO step's worth: spawn arrivals, move crossers whose next band is clear."""
+        if self.rate <= 0 and not self.active and not self.waiting:
+            return
+        self._clock += dt
+        while self._next <= self._clock:
+            self._next += self.rng.exponential(1.0 / self.rate)
+            self.waiting.append(self._new_crosser())
+        if not self.active and not self.waiting:
+            return
+        if self._internal is None:
+            self._internal = [e for e in libsumo.edge.getIDList() if e.startswith(":")]
+        traffic = _EdgeTraffic(libsumo, self._internal)
+        for c in list(self.waiting):
+            if traffic.clear(c.cw, c.pos, c.lat, c.lat, self.speed):
+                self._enter(libsumo, c)
+                self.waiting.remove(c)
+        for c in list(self.active):
+            step = math.copysign(min(self.speed * dt, abs(c.target - c.lat)), c.target - c.lat)
+            if abs(c.target - c.lat) < 1e-6:
+                self._leave(libsumo, traffic, c)
+                continue
+            if traffic.clear(c.cw, c.pos, c.lat, c.lat + step, self.speed, exclude=c.vid):
+                c.lat += step
+                c.waited = 0.0
+            else:
+                c.waited += dt
+            self._place(libsumo, c)
+
+    def _new_crosser(self) -> Crosser:
+        self._count += 1
+        entries = self.net.entries
+        cw = entries[int(self.rng.integers(len(entries)))]
+        if self.net.routes.get(f"r_{cw.edge}") == (cw.edge,):  # arterial: anywhere mid-block
+            pos = float(self.rng.uniform(0.2, 0.8) * cw.length)
+        else:  # intersection arm: a crossing 6 m before the junction
+            pos = cw.length - cw.width - 6.0
+        half = cw.width / 2 - CURB
+        return Crosser(f"xped{self._count}", f"xped{self._count}.0", cw, pos, -half, half, _opposite(self.net, cw))
+
+    def _xy(self, c: Crosser) -> tuple[float, float, float]:
+        """World front-bumper point and SUMO angle (deg) for a crosser at (pos, lat)."""
+        d, r = c.cw.direction, c.cw.right
+        p = c.cw.start + d * (c.pos + 0.25) + r * (c.cw.centre_offset - c.lat)
+        return float(p[0]), float(p[1]), float(math.degrees(math.atan2(d[0], d[1])) % 360.0)
+
+    def _enter(self, ls: object, c: Crosser) -> None:
+        route = f"x_{c.cw.edge}"
+        if route not in self._routes:
+            ls.route.add(route, [c.cw.edge])
+            self._routes.add(route)
+        ls.vehicle.add(c.vid, route, typeID=self.ped_type, depart="now", departLane="0",
+                       departPos=f"{c.pos:.2f}", departSpeed="0")
+        ls.vehicle.setSpeedMode(c.vid, 0)
+        ls.vehicle.setSpeed(c.vid, 0.0)
+        ls.vehicle.setLaneChangeMode(c.vid, 0)
+        c.prev_lat = c.lat
+        self._place(ls, c)
+        self.active.append(c)
+        self._by_vid[c.vid] = c
+
+    def _place(self, ls: object, c: Crosser) -> None:
+        x, y, angle = self._xy(c)
+        ls.vehicle.moveToXY(c.vid, c.cw.edge, -1, x, y, angle, 2)
+
+    def _leave(self, ls: object, traffic: _EdgeTraffic, c: Crosser) -> None:
+        """Reached the far edge of this carriageway: go on to the opposite one, or off the road."""
+        if c.vid in ls.vehicle.getIDList():
+            ls.vehicle.remove(c.vid)
+        self.active.remove(c)
+        self._by_vid.pop(c.vid, None)
+        if c.then is not None:
+            nxt = c.then
+            half = nxt.width / 2 - CURB
+            pos = nxt.length - c.pos  # same crossing line, measured along the other direction
+            n = int(c.vid.rsplit(".", 1)[1]) + 1
+            follow = Crosser(c.public, f"{c.public}.{n}", nxt, pos, half, -half, None)
+            self.waiting.insert(0, follow)
+
+
+class _EdgeTraffic:
+    """Vehicles on an edge and on the junctions (front xy, speed, footprint), read once per step and edge."""
+
+    def __init__(self, ls: object, internal: list[str]) -> None:
+        self.ls = ls
+        self._cache: dict[str, tuple[list[str], np.ndarray]] = {}
+        self._internal = internal
+
+    def _read(self, edge: str) -> tuple[list[str], np.ndarray]:
+        if edge not in self._cache:
+            v = self.ls.vehicle
+            ids = [vid for e in (edge, *self._internal) for vid in self.ls.edge.getLastStepVehicleIDs(e)]
+            rows = np.array([(*v.getPosition(vid), v.getSpeed(vid), v.getLength(vid), v.getWidth(vid))
+                             for vid in ids], dtype=float).reshape(len(ids), 5)
+            self._cache[edge] = (ids, rows)
+        return self._cache[edge]
+
+    def clear(self, cw: Carriageway, pos: float, lat0: float, lat1: float, walk: float, exclude: str = "") -> bool:
+        """True when no vehicle overlaps, or would reach within GAP_TIME, the band from lat0 to lat1 at pos."""
+        ids, rows = self._read(cw.edge)
+        keep = np.array([i != exclude for i in ids], bool)
+        if not keep.any():
+            return True
+        rows = rows[keep]
+        d, r = cw.direction, cw.right
+        rel = rows[:, :2] - cw.start
+        s = rel @ d  # front bumper, metres along cw (node-line frame, like `pos`)
+        lat = cw.centre_offset - rel @ r  # + left of the carriageway centre
+        v, length, width = rows[:, 2], rows[:, 3], rows[:, 4]
+        lo, hi = min(lat0, lat1) - 0.25 - MARGIN, max(lat0, lat1) + 0.25 + MARGIN
+        lateral = (lat + width / 2 > lo) & (lat - width / 2 < hi)
+        # The body covers [s - length, s]; it blocks if it is beside pos now or reaches it within GAP_TIME.
+        ahead = s - length < pos + 0.25 + MARGIN
+        reach = s + v * GAP_TIME + 0.5 > pos - 0.25
+        return not bool(np.any(lateral & ahead & reach))

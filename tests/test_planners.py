@@ -1,0 +1,96 @@
+"""The sampling planner on hand-built situations: brake for a blocked road, swerve into a gap, use sigma."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from simharness.planners import BackgroundPlanner, ConstantSpeedPlanner, EgoLimits, Planner, SamplingPlanner
+from simharness.scene import AgentType, Forecast, Scene
+from simharness.sim.base import EgoCommand, RoadGeometry
+
+
+def _now(ego_speed: float, others: list[tuple[float, float, float]]) -> Scene:
+    """One-frame scene: ego (row 0) at the origin heading +x; others (x, y, speed) heading +x, 4.3 x 1.8 m."""
+    xy = np.array([[0.0, 0.0]] + [[x, y] for x, y, _ in others])[:, None]
+    n = xy.shape[0]
+    return Scene(xy=xy, heading=np.zeros((n, 1)), speed=np.array([[ego_speed]] + [[v] for *_, v in others]),
+                 valid=np.ones((n, 1), bool), agent_id=["ego"] + [f"a{i}" for i in range(n - 1)],
+                 agent_type=np.full(n, AgentType.CAR), length=np.full(n, 4.3), width=np.full(n, 1.8), dt=0.2, ego=0)
+
+
+def _cv_forecast(now: Scene, frames: int = 25, sigma: float | None = None) -> Forecast:
+    rows = np.arange(1, now.num_agents)
+    t = (np.arange(frames) + 1) * 0.2
+    mean = now.xy[rows, -1][:, None] + now.speed[rows, -1][:, None, None] * np.stack([t, 0 * t], -1)[None]
+    sr = None
+    if sigma is not None:
+        sr = np.zeros((rows.size, frames, 3), np.float32)
+        sr[..., :2] = sigma
+    return Forecast(agent_id=now.agent_id[rows], mean=mean.astype(np.float32), dt=0.2, sigma_rho=sr)
+
+
+def _road(half_width: float) -> RoadGeometry:
+    poly = np.array([[-100, -half_width], [400, -half_width], [400, half_width], [-100, half_width]], float)
+    return RoadGeometry(drivable=(poly,))
+
+
+def test_brakes_for_a_stopped_wall_across_the_road():
+    wall = [(25.0, y, 0.0) for y in (-4.0, -2.0, 0.0, 2.0, 4.0)]
+    now = _now(10.0, wall)
+    planner = SamplingPlanner(EgoLimits(max_speed=14.0), road=_road(5.0))
+    cmd = planner.plan(now, _cv_forecast(now))
+    assert cmd.acceleration <= -2.5
+    # The chosen rollout stops short of the wall (front bumper before its rear bumper).
+    assert planner.last_rollout[:, 0].max() + 4.3 / 2 < 25.0 - 4.3 / 2
+
+
+def test_speeds_up_on_an_empty_road_and_keeps_its_line():
+    now = _now(5.0, [])
+    cmd = SamplingPlanner(EgoLimits(max_speed=14.0), road=_road(5.0)).plan(now, _cv_forecast(now))
+    assert cmd.acceleration > 0 and cmd.lateral_velocity == 0
+
+
+def test_swerves_into_a_free_gap_rather_than_stopping():
+    # A stopped car dead ahead, free space to the left.
+    now = _now(10.0, [(25.0, 0.0, 0.0), (25.0, -2.2, 0.0)])
+    planner = SamplingPlanner(EgoLimits(max_speed=14.0), road=_road(5.0))
+    cmd = planner.plan(now, _cv_forecast(now))
+    assert cmd.lateral_velocity > 0
+    assert planner.last_rollout[-1, 0] > 25.0  # gets past
+
+
+def test_road_edge_is_respected():
+    # Same, but the road ends just left of the ego: the swerve is impossible, so it brakes.
+    now = _now(10.0, [(25.0, 0.0, 0.0), (25.0, -2.2, 0.0)])
+    cmd = SamplingPlanner(EgoLimits(max_speed=14.0), road=_road(1.5)).plan(now, _cv_forecast(now))
+    assert cmd.lateral_velocity <= 0 and cmd.acceleration < 0
+
+
+def test_forecast_uncertainty_widens_the_others():
+    # A car passing 2.6 m to the left at the same speed: fine when certain, a conflict with sigma 1 m.
+    now = _now(10.0, [(0.0, 2.6, 10.0)])
+    sure = SamplingPlanner(EgoLimits(max_speed=10.0), road=_road(6.0))
+    sure.plan(now, _cv_forecast(now))
+    unsure = SamplingPlanner(EgoLimits(max_speed=10.0), road=_road(6.0))
+    cmd = unsure.plan(now, _cv_forecast(now, sigma=1.0))
+    straight = np.flatnonzero((unsure._off == 0) & (unsure._acc == 0))[0]
+    assert unsure.last_cost[straight] > sure.last_cost[straight] + 1.0
+    assert cmd.lateral_velocity < 0  # moves away from the uncertain neighbour
+
+
+def test_reference_planners_follow_the_protocol():
+    now = _now(5.0, [])
+    for p in (BackgroundPlanner(), ConstantSpeedPlanner(), SamplingPlanner()):
+        assert isinstance(p, Planner)
+    assert BackgroundPlanner().plan(now, None) is None
+    assert ConstantSpeedPlanner().plan(now, None) == EgoCommand(0.0, 0.0)
+
+
+def test_plan_is_deterministic_and_vectorised_over_many_agents():
+    rng = np.random.default_rng(0)
+    others = [(float(x), float(y), float(v)) for x, y, v in
+              zip(rng.uniform(-40, 60, 80), rng.uniform(-5, 5, 80), rng.uniform(0, 12, 80), strict=True)]
+    now = _now(8.0, others)
+    a = SamplingPlanner(road=_road(6.0)).plan(now, _cv_forecast(now, sigma=0.5))
+    b = SamplingPlanner(road=_road(6.0)).plan(now, _cv_forecast(now, sigma=0.5))
+    assert a == b
