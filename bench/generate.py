@@ -112,7 +112,9 @@ def main() -> None:
         same = all((Path(tmp) / "w1" / f).read_bytes() == (Path(tmp) / "w2" / f).read_bytes()
                    for f in ["manifest.json", *(f"scene-{s:06d}.parquet" for s in seeds)])
         print(f"  speed-up 2 workers / 1 worker       {walls[1] / walls[2]:7.3f}   (target >= 1.7); "
-              f"data sets byte-identical: {same}; cores here: {os.cpu_count()}")
+              f"data sets byte-identical: {same}")
+        print(f"  machine: {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f} at the end (other work on "
+              f"the same cores skews both figures)")
 
 
 if __name__ == "__main__":

@@ -135,10 +135,13 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
                    disable=not progress, leave=False)
         for i in bar:
             b = store.batch(order[i:i + batch_size]).tensors()
-            loss = LOSSES[kind](net(b), b["fut"], b["fut_valid"])
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
+            if hasattr(net, "training_step"):  # a model with its own update (Social-GAN: discriminator, variety loss)
+                loss = net.training_step(b, kind, opt)
+            else:
+                loss = LOSSES[kind](net(b), b["fut"], b["fut_valid"])
+                opt.zero_grad()
+                loss.backward()
+                opt.step()
             tot += float(loss)
             nb += 1
             if nb % 20 == 0:

@@ -147,7 +147,7 @@ def simulate(spec: ScenarioSpec, seed: int, predictor: Predictor | None, planner
     horizon = max(1, int(round(config.horizon_s / dt)))
     every = max(1, int(round(1.0 / (config.predict_hz * dt))))
     issued = _Issued()
-    timing = {"sim": 0.0, "predict": 0.0, "plan": 0.0}
+    timing = {"reset": 0.0, "sim": 0.0, "predict": 0.0, "plan": 0.0}
     if hasattr(planner, "reset"):
         planner.reset()
     sim = make_simulator(spec)
@@ -157,7 +157,7 @@ def simulate(spec: ScenarioSpec, seed: int, predictor: Predictor | None, planner
         road = sim.road
         if hasattr(planner, "set_road"):  # the drivable area is only known once the simulator is built
             planner.set_road(road)
-        timing["sim"] += time.perf_counter() - t0
+        timing["reset"] += time.perf_counter() - t0
         ego_frames, latest, latest_at = 0, None, -1
         for k in range(spec.num_frames - 1):
             frame = frames[-1]
@@ -231,8 +231,10 @@ def run_episode(job: EpisodeJob) -> dict[str, Any]:
     scene.meta.update({"predictor": job.predictor, "scene_id": f"{_slug(job.predictor)}-seed{job.seed:06d}"})
     scores = score_episode(scene, issued, cfg)
     sim_s = scene.num_frames * scene.dt
+    loop_s = timing["sim"] + timing["predict"] + timing["plan"]
     scores.update({"seed": job.seed, "predictor": job.predictor, "wall_s": wall, "sim_s": sim_s,
-                   "realtime_factor": sim_s / max(wall - reference_s, 1e-9), "reference_s": reference_s,
+                   "realtime_factor": sim_s / max(loop_s, 1e-9), "reference_s": reference_s,
+                   "realtime_factor_with_warmup": (sim_s + spec.warmup) / max(wall - reference_s, 1e-9),
                    **{f"time_{k}_s": v for k, v in timing.items()}})
     out: dict[str, Any] = {"scores": scores, "road": road.to_dict()}
     if job.keep_scene:
@@ -261,6 +263,11 @@ def score_episode(scene: Scene, issued: _Issued, config: LoopConfig) -> dict[str
         return out
     xy, hd, ln, wd, va = scene.xy, scene.heading, scene.length, scene.width, scene.valid
     contact = safety.ego_contact(xy, hd, ln, wd, va, e)
+    # Overlaps the simulator created when it placed the ego are its doing, not the ego's: set apart.
+    first = int(np.argmax(va[e]))
+    placed = np.zeros_like(contact)
+    placed[:, first:] = np.cumprod(contact[:, first:], axis=1).astype(bool)
+    contact &= ~placed
     vel = scene.speed[..., None] * np.stack([np.cos(hd), np.sin(hd)], -1)
     ttc = safety.time_to_collision(xy, vel, hd, ln, wd, va, e, horizon=config.ttc_horizon)
     near = safety.near_misses(ttc, contact, va, config.ttc_threshold)
@@ -272,6 +279,7 @@ def score_episode(scene: Scene, issued: _Issued, config: LoopConfig) -> dict[str
     fault = safety.ego_at_fault(safety.spell_onsets(contact), xy, vel, e)
     out.update({
         "collided": float(contact.any()),
+        "insertion_overlaps": int(placed[:, first].sum()),
         "collisions": float(sum(by_type.values())),
         "collisions_by_type": by_type,
         "at_fault_collided": float(fault.any()),
@@ -358,8 +366,7 @@ def aggregate(episodes: Sequence[dict[str, Any]], seed: int = 0) -> dict[str, An
         "seeds": sorted(int(e["seed"]) for e in episodes),
         "collision_rate": col["collided"],
         "collisions_by_type": by_type,
-        "at_fault_collided": float(fault.any()),
-        "at_fault_collisions": float(fault.sum()),
+        "at_fault_collision_rate": col["at_fault_collided"],
         "near_miss_rate": col["near_miss"],
         "progress_m": col["progress_m"],
         "online_ade": col["online_ade"],
@@ -367,7 +374,7 @@ def aggregate(episodes: Sequence[dict[str, Any]], seed: int = 0) -> dict[str, An
         "online_ade_rmse": col["online_ade_rmse"],
         "online_fde_rmse": col["online_fde_rmse"],
         "online_by_type": online_by_type,
-        **{k: v for k, v in col.items() if k not in ("collided", "near_miss", "progress_m", "online_ade",
+        **{k: v for k, v in col.items() if k not in ("collided", "at_fault_collided", "near_miss", "progress_m", "online_ade",
                                                       "online_fde", "online_ade_rmse", "online_fde_rmse")},
         "bootstrap": {"resamples": 2000, "level": 0.95, "seed": seed},
     }
@@ -413,7 +420,7 @@ def _fmt(ci: dict[str, float]) -> str:
 
 
 SCORECARD_ROWS = (("collision_rate", "collision rate (share of episodes)"),
-                  ("at_fault_collided", "at-fault collision rate (share of episodes)"),
+                  ("at_fault_collision_rate", "at-fault collision rate (share of episodes)"),
                   ("near_miss_rate", "near-miss rate (share of episodes)"),
                   ("near_misses_per_min", "near misses per ego-minute"),
                   ("progress_m", "progress (m)"), ("mean_speed", "mean speed (m/s)"),

@@ -21,8 +21,10 @@ mask: absent rows and frames are zero. With ``config["predictor"]`` set the obse
 ``{"agents": that Box, "forecast": Box(-1, 1, (K, Ff, 3))}`` with each neighbour's forecast
 positions (present, x / range, y / range) over Ff frames from that predictor.
 
-Action (``Box([-max_decel, -max_lateral_speed], [max_accel, max_lateral_speed])`` float32):
-longitudinal acceleration (m/s^2) and lateral velocity (m/s, + left) for the next frame.
+Action (``Box(-1, 1, (2,))`` float32, normalised as RL libraries prefer): ``a[0]`` longitudinal
+acceleration, ``a[0] * max_accel`` when positive and ``a[0] * max_decel`` when negative (m/s^2);
+``a[1] * max_lateral_speed`` lateral velocity (m/s, + left); held for the next frame.
+`DenseTrafficEnv.command(action)` gives the physical `EgoCommand`.
 
 Reward per step (weights in ``config["reward"]``): ``progress * metres made good along the ego's
 heading + collision * (1 on the first frame of each new ego contact) + accel * a^2 + jerk * (da/dt)^2
@@ -93,8 +95,7 @@ class DenseTrafficEnv(gym.Env):
                 {"agents": agents, "forecast": spaces.Box(-1.0, 1.0, (k, int(c["forecast_frames"]), 3), np.float32)})
         else:
             self.observation_space = agents
-        self.action_space = spaces.Box(np.array([-c["max_decel"], -c["max_lateral_speed"]], np.float32),
-                                       np.array([c["max_accel"], c["max_lateral_speed"]], np.float32))
+        self.action_space = spaces.Box(-1.0, 1.0, (2,), np.float32)
         self._sim = None
         self._predictor = None
         self._frames: list[Frame] = []
@@ -149,9 +150,10 @@ class DenseTrafficEnv(gym.Env):
         if self._sim is None or not self._frames:
             raise RuntimeError("call reset() before step()")
         c, w = self.config, self.config["reward"]
-        a = np.clip(np.asarray(action, np.float64).reshape(2), self.action_space.low, self.action_space.high)
+        command = self.command(action)
+        a = (command.acceleration, command.lateral_velocity)
         prev = self._frames[-1]
-        frame = self._sim.step(EgoCommand(float(a[0]), float(a[1])))
+        frame = self._sim.step(command)
         self._frames.append(frame)
         self._frames = self._frames[-(int(c["history_frames"]) + 2):]
         dt = self.spec_.dt
@@ -174,6 +176,13 @@ class DenseTrafficEnv(gym.Env):
         truncated = self._steps * dt >= float(c["duration"]) - 1e-9
         return self._observation(), float(reward), terminated, bool(truncated and not terminated), \
             self._info(ttc, gap)
+
+    def command(self, action: np.ndarray) -> EgoCommand:
+        """Normalised action (2,) in [-1, 1] -> physical `EgoCommand` (see the module docstring)."""
+        c = self.config
+        a = np.clip(np.asarray(action, np.float64).reshape(2), -1.0, 1.0)
+        acc = a[0] * (c["max_accel"] if a[0] >= 0 else c["max_decel"])
+        return EgoCommand(float(acc), float(a[1] * c["max_lateral_speed"]))
 
     def render(self) -> np.ndarray | None:
         if self.render_mode != "rgb_array":

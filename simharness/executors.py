@@ -2,23 +2,35 @@
 
 A job function takes one picklable job and returns a picklable value; it knows nothing of the
 pool. An `Executor` maps it over jobs and streams `JobResult`s back as they finish, in any order.
-A job that raises, or whose process dies, comes back as a failed result while the others go on.
+A job whose process dies, or that raises one of `retry_on` (a simulator crash), is run again in a
+fresh process, at most `max_retries` more times; then, like a job that raises anything else (a bug,
+bad input), it comes back as a failed result while the others go on. Both executors share this
+policy, so a run behaves alike on either.
 
 `LocalExecutor` runs every job in a fresh spawned process (libsumo allows one simulation per
 process, and a fresh process leaves nothing behind from the previous job), at most `workers` at a
-time. A cluster executor (Ray) plugs in behind the same `map_unordered`.
+time. `RayExecutor` runs every job as a Ray task in a worker process used once (`max_calls=1`), on a
+local Ray instance it starts (and stops) or on a cluster at `address`; Ray is an optional extra,
+imported only here and only when asked for.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import logging
 import multiprocessing as mp
+import os
+import sys
+import time
 import traceback
 from collections.abc import Callable, Iterator, Sequence
 from multiprocessing.connection import Connection, wait
 from typing import Any, Protocol, runtime_checkable
 
-from simharness.errors import UserError
+from simharness.errors import SimulatorError, UserError
+
+RETRY_ON: tuple[type[BaseException], ...] = (SimulatorError,)  # a simulator crash may not recur; a bug will
+MAX_RETRIES = 2
 
 
 @dataclasses.dataclass(frozen=True)
@@ -29,6 +41,7 @@ class JobResult:
     value: Any = None
     error: str | None = None
     traceback: str = ""
+    attempts: int = 1  # how many times the job ran (1 + retries)
 
     @property
     def ok(self) -> bool:
@@ -44,13 +57,24 @@ class Executor(Protocol):
     def map_unordered(self, fn: Callable[[Any], Any], jobs: Sequence[Any]) -> Iterator[JobResult]: ...
 
 
-def _child(fn: Callable[[Any], Any], job: Any, conn: Connection) -> None:
-    """Body of a worker process: run one job, send ("ok", value) or ("error", line, traceback)."""
+def _one_line(e: BaseException) -> str:
+    return f"{type(e).__name__}: {e}".strip().splitlines()[0]
+
+
+def _check_policy(workers: int, max_retries: int) -> None:
+    if workers < 1:
+        raise UserError(f"--workers: expected a positive number of processes, got {workers}")
+    if max_retries < 0:
+        raise UserError(f"max_retries: expected 0 or more, got {max_retries}")
+
+
+def _child(fn: Callable[[Any], Any], job: Any, conn: Connection,
+           retry_on: tuple[type[BaseException], ...] = RETRY_ON) -> None:
+    """Body of a worker process: run one job, send ("ok", value) or ("error", line, traceback, retryable)."""
     try:
         value = fn(job)
     except BaseException as e:  # noqa: B036 - a job's KeyboardInterrupt is reported too
-        message = f"{type(e).__name__}: {e}".strip().splitlines()[0]
-        conn.send(("error", message, traceback.format_exc()))
+        conn.send(("error", _one_line(e), traceback.format_exc(), isinstance(e, retry_on)))
     else:
         conn.send(("ok", value))
     finally:
@@ -58,37 +82,44 @@ def _child(fn: Callable[[Any], Any], job: Any, conn: Connection) -> None:
 
 
 class LocalExecutor:
-    """A spawn-context process per job, at most `workers` at once, on this machine."""
+    """A spawn-context process per job (and per retry), at most `workers` at once, on this machine."""
 
-    def __init__(self, workers: int = 2) -> None:
-        if workers < 1:
-            raise UserError(f"--workers: expected a positive number of processes, got {workers}")
+    def __init__(self, workers: int = 2, max_retries: int = MAX_RETRIES,
+                 retry_on: tuple[type[BaseException], ...] = RETRY_ON) -> None:
+        _check_policy(workers, max_retries)
         self.workers = int(workers)
+        self.max_retries = int(max_retries)
+        self.retry_on = tuple(retry_on)
         self._ctx = mp.get_context("spawn")
 
     def map_unordered(self, fn: Callable[[Any], Any], jobs: Sequence[Any]) -> Iterator[JobResult]:
-        pending = list(jobs)[::-1]  # pop() from the end keeps the given order
-        running: dict[Connection, tuple[Any, Any]] = {}  # reader -> (job, process)
+        pending = [(job, 1) for job in reversed(list(jobs))]  # pop() from the end keeps the given order
+        running: dict[Connection, tuple[Any, int, Any]] = {}  # reader -> (job, attempt, process)
         try:
             while pending or running:
                 while pending and len(running) < self.workers:
-                    job = pending.pop()
+                    job, attempt = pending.pop()
                     reader, writer = self._ctx.Pipe(duplex=False)
-                    proc = self._ctx.Process(target=_child, args=(fn, job, writer), daemon=True)
+                    proc = self._ctx.Process(target=_child, args=(fn, job, writer, self.retry_on), daemon=True)
                     proc.start()
                     writer.close()  # the child holds the only writer: EOF here means it died
-                    running[reader] = (job, proc)
+                    running[reader] = (job, attempt, proc)
                 for reader in wait(list(running)):
-                    job, proc = running.pop(reader)
-                    yield self._collect(job, proc, reader)
+                    job, attempt, proc = running.pop(reader)
+                    result, retryable = self._collect(job, proc, reader)
+                    if retryable and attempt <= self.max_retries:
+                        pending.append((job, attempt + 1))  # next to start: a retry keeps its place in line
+                    else:
+                        yield dataclasses.replace(result, attempts=attempt)
         finally:
-            for reader, (_, proc) in running.items():  # interrupted: stop what still runs
+            for reader, (_, _, proc) in running.items():  # interrupted: stop what still runs
                 proc.terminate()
                 proc.join(5)
                 reader.close()
 
     @staticmethod
-    def _collect(job: Any, proc: Any, reader: Connection) -> JobResult:
+    def _collect(job: Any, proc: Any, reader: Connection) -> tuple[JobResult, bool]:
+        """The job's result and whether running it again might help (its process died, or it may retry)."""
         try:
             msg = reader.recv()
         except (EOFError, OSError):
@@ -97,18 +128,137 @@ class LocalExecutor:
             reader.close()
         proc.join()
         if msg is None:
-            return JobResult(job, error=f"worker process died (exit code {proc.exitcode})")
+            return JobResult(job, error=f"worker process died (exit code {proc.exitcode})"), True
         if msg[0] == "ok":
-            return JobResult(job, value=msg[1])
-        return JobResult(job, error=msg[1], traceback=msg[2])
+            return JobResult(job, value=msg[1]), False
+        return JobResult(job, error=msg[1], traceback=msg[2]), msg[3]
 
 
-def make_executor(name: str = "local", workers: int = 2, address: str | None = None) -> Executor:
-    """The executor named on the command line ('local'; 'ray' arrives with the cluster issue)."""
+# ---------------------------------------------------------------------- Ray
+def import_ray() -> Any:
+    """The `ray` module, or a UserError saying how to install it (it is an optional extra)."""
+    try:
+        import ray
+    except ImportError:
+        raise UserError("--executor ray: Ray is not installed; install it with: pip install 'simharness[ray]'"
+                        ) from None
+    return ray
+
+
+def _ray_task(fn: Callable[[Any], Any], job: Any) -> Any:
+    """Body of one Ray task; it runs in a worker process that exits after it (max_calls=1)."""
+    return fn(job)
+
+
+class RayExecutor:
+    """One Ray task per job (and per retry), each in a worker process used once, at most `workers` at once.
+
+    With no `address` (and no Ray already initialised in this process) it starts a local Ray instance
+    with `num_cpus=workers` and no dashboard, and shuts it down after each `map_unordered`. With an
+    `address` ("auto", "ray://host:10001", "host:6379") it joins that cluster and leaves it running;
+    every node must have simharness installed and see the same paths (data set folder, run folders).
+    Retries are counted here, not by Ray (its `max_retries=0`), so attempts are reported as locally.
+    """
+
+    def __init__(self, workers: int = 2, address: str | None = None, max_retries: int = MAX_RETRIES,
+                 retry_on: tuple[type[BaseException], ...] = RETRY_ON, object_store_memory: int | None = None
+                 ) -> None:
+        _check_policy(workers, max_retries)
+        self.workers = int(workers)
+        self.address = address or None
+        self.max_retries = int(max_retries)
+        self.retry_on = tuple(retry_on)
+        self.object_store_memory = object_store_memory
+        self.startup_s: float | None = None  # seconds ray.init took in the last run (None: joined a running Ray)
+
+    def map_unordered(self, fn: Callable[[Any], Any], jobs: Sequence[Any]) -> Iterator[JobResult]:
+        ray = import_ray()
+        started = self._connect(ray)
+        try:
+            task = ray.remote(num_cpus=1, max_calls=1, max_retries=0)(_ray_task)
+            fn_ref = ray.put(fn)  # shipped once, not with every job
+            pending = [(job, 1) for job in reversed(list(jobs))]
+            running: dict[Any, tuple[Any, int]] = {}  # ObjectRef -> (job, attempt)
+            try:
+                while pending or running:
+                    while pending and len(running) < self.workers:
+                        job, attempt = pending.pop()
+                        running[task.remote(fn_ref, job)] = (job, attempt)
+                    done, _ = ray.wait(list(running), num_returns=1)
+                    for ref in done:
+                        job, attempt = running.pop(ref)
+                        result, retryable = self._collect(ray, ref, job)
+                        if retryable and attempt <= self.max_retries:
+                            pending.append((job, attempt + 1))
+                        else:
+                            yield dataclasses.replace(result, attempts=attempt)
+            finally:
+                for ref in running:  # interrupted: stop what still runs
+                    ray.cancel(ref, force=True)
+        finally:
+            if started:
+                ray.shutdown()
+
+    def _collect(self, ray: Any, ref: Any, job: Any) -> tuple[JobResult, bool]:
+        try:
+            return JobResult(job, value=ray.get(ref)), False
+        except ray.exceptions.RayTaskError as e:  # the job raised: Ray re-raises it wrapped
+            cause = e.cause if isinstance(e.cause, BaseException) else e
+            return JobResult(job, error=_one_line(cause), traceback=str(e)), isinstance(cause, self.retry_on)
+        except ray.exceptions.TaskCancelledError as e:
+            return JobResult(job, error=f"cancelled ({type(e).__name__})"), False
+        except ray.exceptions.RayError as e:  # worker crashed, killed for memory, node lost, object lost
+            detail = str(e).strip().splitlines()[0] if str(e).strip() else ""
+            return JobResult(job, error=f"worker process died ({type(e).__name__}: {detail})"), True
+
+    def _connect(self, ray: Any) -> bool:
+        """Join a running Ray, or start a local instance; True when we started one (and must stop it)."""
+        if ray.is_initialized():
+            self.startup_s = None
+            return False
+        if self.address:
+            os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
+            t0 = time.perf_counter()
+            try:
+                ray.init(address=self.address, logging_level=logging.ERROR, log_to_driver=False)
+            except (ConnectionError, ValueError, RuntimeError) as e:
+                raise UserError(f"--address {self.address}: cannot join a Ray cluster there: {_one_line(e)}"
+                                ) from None
+            self.startup_s = time.perf_counter() - t0
+            return True  # our connection only: shutdown() disconnects, the cluster keeps running
+        self.startup_s = start_local_ray(self.workers, self.object_store_memory)
+        return True
+
+
+def start_local_ray(cpus: int, object_store_memory: int | None = None) -> float:
+    """Start a quiet local Ray instance with `cpus` CPUs and no dashboard; returns the seconds it took.
+
+    Its workers import what this process can import (its sys.path), as spawned processes would.
+    """
+    ray = import_ray()
+    os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")  # no usage-stats prompt or upload
+    saved = os.environ.get("PYTHONPATH")
+    os.environ["PYTHONPATH"] = os.pathsep.join(p for p in sys.path if p)  # inherited by the raylet's workers
+    t0 = time.perf_counter()
+    try:
+        ray.init(num_cpus=cpus, include_dashboard=False, object_store_memory=object_store_memory,
+                 logging_level=logging.ERROR, log_to_driver=False)
+    finally:
+        if saved is None:
+            os.environ.pop("PYTHONPATH", None)
+        else:
+            os.environ["PYTHONPATH"] = saved
+    return time.perf_counter() - t0
+
+
+def make_executor(name: str = "local", workers: int = 2, address: str | None = None,
+                  max_retries: int = MAX_RETRIES) -> Executor:
+    """The executor named on the command line: 'local' (process pool) or 'ray' (local instance or cluster)."""
     if name == "local":
         if address:
             raise UserError("--address: only used with --executor ray")
-        return LocalExecutor(workers)
+        return LocalExecutor(workers, max_retries=max_retries)
     if name == "ray":
-        raise UserError("--executor ray: not available yet in this version; use --executor local")
+        import_ray()  # fail now, before any work, when the extra is missing
+        return RayExecutor(workers, address, max_retries=max_retries)
     raise UserError(f"--executor: unknown executor {name!r}; expected local or ray")

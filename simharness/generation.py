@@ -165,7 +165,8 @@ def generate(spec: ScenarioSpec, seeds: Sequence[int], out: Path, workers: int =
     bar = tqdm(total=len(todo), unit="scene", file=sys.stderr, disable=not progress or not todo,
                desc=f"generate {spec.name}", dynamic_ncols=True)
     try:
-        for result in pool.map_unordered(SceneJob(spec, out), todo):
+        # An absolute folder: a cluster's workers do not share this process's working directory.
+        for result in pool.map_unordered(SceneJob(spec, out.absolute()), todo):
             if result.ok:
                 v = result.value
                 entries[result.job] = {k: v[k] for k in ("scene_id", "file", "rows", "agents", "frames", "sha256")}
@@ -175,13 +176,15 @@ def generate(spec: ScenarioSpec, seeds: Sequence[int], out: Path, workers: int =
                 teleports += v["teleports"]
                 sim_seconds += v["seconds"]
             else:
-                failed[result.job] = result.error
+                failed[result.job] = result.error + (f" (after {result.attempts} attempts)" if result.attempts > 1
+                                                     else "")
                 tqdm.write(f"seed {result.job} failed: {result.error}", file=sys.stderr)
             bar.update(1)
             rate = agent_frames / max(time.perf_counter() - t0, 1e-9)
             bar.set_postfix_str(f"{rate:,.0f} agent-frames/s, {len(failed)} failed")
     finally:
         bar.close()
+    clean_temp_files(out)  # half-written files of attempts whose worker died (their retries completed)
     save()
     seconds = time.perf_counter() - t0
     summary = {

@@ -118,7 +118,7 @@ class SamplingPlanner:
         v_prev = np.concatenate([np.full((v.shape[0], 1), v0), v[:, :-1]], 1)
         x = np.cumsum(0.5 * (v + v_prev) * dt, 1)
         # Lateral: towards the offset as fast as allowed (limit and slip angle at the current speed), then hold.
-        rate = np.minimum(lim.max_lateral_speed, np.tan(lim.max_slip) * v_prev)  # (C, F) m/s
+        rate = np.minimum(lim.max_lateral_speed, np.tan(lim.max_slip) * np.minimum(v_prev, v))  # (C, F) m/s
         y_abs = np.minimum(np.abs(self._off)[:, None], np.cumsum(rate * dt, 1))
         y = np.sign(self._off)[:, None] * y_abs
         dy = np.diff(y, axis=1, prepend=0.0)

@@ -93,8 +93,12 @@ def type_legend(ax: Axes, types: np.ndarray | None = None, ego: bool = False) ->
 
 
 def plot_frame(scene: Scene, frame: int, path: Path | str, road: RoadGeometry | None = None,
-               trail_s: float = 3.0, title: str | None = None) -> Path:
-    """One frame top-down: road, every footprint coloured by type, last `trail_s` of trails -> PNG."""
+               trail_s: float = 3.0, title: str | None = None,
+               window: tuple[float, float, float, float] | None = None) -> Path:
+    """One frame top-down: road, every footprint coloured by type, last `trail_s` of trails -> PNG.
+
+    window: optional (xmin, ymin, xmax, ymax) metres to show (default: the road's bounds).
+    """
     path = Path(path)
     valid = scene.valid[:, frame]
     pts = scene.xy[valid, frame]
@@ -104,7 +108,9 @@ def plot_frame(scene: Scene, frame: int, path: Path | str, road: RoadGeometry | 
     draw_agents(ax, pts, scene.heading[valid, frame], scene.length[valid], scene.width[valid],
                 scene.agent_type[valid], ego=int(np.flatnonzero(np.flatnonzero(valid) == scene.ego)[0])
                 if scene.ego >= 0 and valid[scene.ego] else -1)
-    if road is not None and road.drivable:
+    if window is not None:
+        x0, y0, x1, y1 = window
+    elif road is not None and road.drivable:
         x0, y0, x1, y1 = road.bounds()
     elif len(pts):
         (x0, y0), (x1, y1) = pts.min(0) - 5, pts.max(0) + 5
@@ -350,4 +356,49 @@ def plot_forecasts(scene: Scene, now: int, rows: np.ndarray, history: np.ndarray
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path)
     plt.close(fig)
+    return path
+
+
+def plot_sweep(points: list[dict], axis: str, path: Path | str, title: str = "",
+               panels: tuple[tuple[str, str], ...] = (("collision_rate", "collision rate (share of episodes)"),
+                                                      ("online_ade", "online ADE (m, mean Euclidean)"))) -> Path:
+    """Sweep figure: one panel per metric against the swept setting `axis`, mean with 95% CI bars.
+
+    points: [{"settings": {axis: value, ...}, "group": line label, metric: {"mean", "lo", "hi", "n"}}, ...];
+    one line per group; a numeric axis is drawn to scale, any other as categories in the given order.
+    """
+    import io
+
+    from simharness.io.parquet import atomic_write_bytes
+
+    path = Path(path)
+    values = list(dict.fromkeys(p["settings"][axis] for p in points))
+    numeric = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values)
+    xpos = {v: (float(v) if numeric else float(i)) for i, v in enumerate(values)}
+    groups = list(dict.fromkeys(p["group"] for p in points))
+    fig, axes = plt.subplots(1, len(panels), figsize=(5.5 * len(panels), 4), dpi=120, squeeze=False)
+    for ax, (key, label) in zip(axes[0], panels, strict=True):
+        for j, g in enumerate(groups):
+            mine = sorted((p for p in points if p["group"] == g), key=lambda p: xpos[p["settings"][axis]])
+            x = np.array([xpos[p["settings"][axis]] for p in mine])
+            ci = np.array([[p[key]["mean"], p[key]["lo"], p[key]["hi"]] for p in mine], float)  # (P, 3)
+            shift = (j - (len(groups) - 1) / 2) * 0.02 * (np.ptp(x) if numeric and np.ptp(x) > 0 else 1.0)
+            ax.errorbar(x + shift, ci[:, 0], yerr=np.abs(ci[:, 1:].T - ci[:, 0]), marker="o", capsize=4, label=g)
+        ax.set_xlabel(axis)
+        ax.set_ylabel(label)
+        if key.endswith("_rate"):
+            ax.set_ylim(-0.05, 1.05)  # a share of episodes: always on the whole scale
+        if not numeric:
+            ax.set_xticks(list(xpos.values()), [str(v) for v in values])
+        ax.grid(alpha=0.3)
+    if len(groups) > 1 or groups[0]:
+        axes[0, 0].legend(fontsize=8)
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png")
+    plt.close(fig)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(path, buf.getvalue())  # a figure is never seen half-written either
     return path

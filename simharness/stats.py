@@ -25,6 +25,7 @@ from simharness.sim.base import RoadGeometry
 NEIGHBOUR_RADIUS_M = 50.0
 NUM_TYPES = len(AgentType)
 PED = int(AgentType.PEDESTRIAN)
+FIGURE_WINDOW_M = 120.0  # stretch of a long road drawn in the frame figure
 
 
 # ---------------------------------------------------------------------- pure per-scene figures
@@ -236,7 +237,15 @@ def write_frame_figure(path: Path, out: Path, scene_index: int = 0, frame: int |
     if frame is None:  # the busiest frame at least 3 s in, so trails are full length
         start = min(int(round(3.0 / scene.dt)), max(scene.num_frames - 1, 0))
         frame = start + int(np.argmax(scene.valid[:, start:].sum(0))) if scene.num_frames else 0
-    return plot_frame(scene, frame, out, road=ds.road)
+    road, window = ds.road, None
+    if road is not None and road.drivable:
+        x0, y0, x1, y1 = road.bounds()
+        xs = np.sort(scene.xy[scene.valid[:, frame], frame, 0])
+        if x1 - x0 > 2 * FIGURE_WINDOW_M and xs.size:  # a long road: show its busiest stretch, readable
+            inside = np.searchsorted(xs, xs + FIGURE_WINDOW_M) - np.arange(xs.size)
+            left = float(np.clip(xs[int(np.argmax(inside))] - 5.0, x0, x1 - FIGURE_WINDOW_M))
+            window = (left, y0, left + FIGURE_WINDOW_M, y1)
+    return plot_frame(scene, frame, out, road=road, window=window)
 
 
 def stats_command(args: Any) -> int:

@@ -54,14 +54,16 @@ def _pid(_: int) -> int:
 
 def test_make_executor_names() -> None:
     assert make_executor("local", 3).workers == 3
-    with pytest.raises(UserError, match="not available yet"):
-        make_executor("ray", 2)
+    with pytest.raises(UserError, match="only used with --executor ray"):
+        make_executor("local", 2, address="auto")
+    with pytest.raises(UserError, match="unknown executor"):
+        make_executor("dask", 2)
     with pytest.raises(UserError, match="positive"):
         make_executor("local", 0)
 
 
 # ---------------------------------------------------------------------- generation with real SUMO
-DURATION = 12.0  # recorded seconds per scene: short, the scenario's own warm-up fills the road first
+DURATION = 20.0  # recorded seconds per scene: short; the scenario's own warm-up fills the road first
 
 
 def short_scenario(folder: Path, duration: float = DURATION) -> Path:

@@ -22,6 +22,11 @@ MODELS: dict[str, tuple[str, str, dict[str, Any]]] = {
                    {"horizon": True, "heterogeneous": False}),
     "traphic-b": ("predictor.models.traphic:TraPHic", "predictor.models.traphic:TraPHicConfig",
                   {"horizon": False, "heterogeneous": False}),
+    # The paper's baselines (H7).
+    "rnn-ed": ("predictor.models.rnn_ed:RNNED", "predictor.models.rnn_ed:RNNEDConfig", {}),
+    "social-lstm": ("predictor.models.social_lstm:SocialLSTM", "predictor.models.social_lstm:SocialLSTMConfig", {}),
+    "social-gan": ("predictor.models.social_gan:SocialGAN", "predictor.models.social_gan:SocialGANConfig", {}),
+    "cs-lstm": ("predictor.models.cs_lstm:CSLSTM", "predictor.models.cs_lstm:CSLSTMConfig", {}),
 }
 
 

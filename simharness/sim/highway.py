@@ -1,4 +1,4 @@
-"""highway-env backend: `HighwaySimulator` (the `Simulator` protocol) over `DenseTrafficEnv`.
+"""highway-env backend: `HighwaySimulator` (the `Simulator` protocol) over `HeteroHighwayEnv`.
 
 The scenario file maps onto the env's config dict (`config_from_spec`); the
 simulator resets the env with `spec.seed + seed`, then emits one `Frame` per
@@ -18,13 +18,13 @@ import numpy as np
 from simharness.errors import UserError
 from simharness.scenario import ScenarioSpec
 from simharness.sim.base import EgoCommand, Event, Frame, RoadGeometry
-from simharness.sim.highway_world import DenseTrafficEnv
+from simharness.sim.highway_world import HeteroHighwayEnv
 
-__all__ = ["DenseTrafficEnv", "HighwaySimulator", "config_from_spec", "road_geometry"]
+__all__ = ["HeteroHighwayEnv", "HighwaySimulator", "config_from_spec", "road_geometry"]
 
 
 def config_from_spec(spec: ScenarioSpec) -> dict[str, Any]:
-    """`DenseTrafficEnv` config for a scenario (demand_scale applied); UserError for what it cannot build."""
+    """`HeteroHighwayEnv` config for a scenario (demand_scale applied); UserError for what it cannot build."""
     where = spec.path or spec.name
     if spec.road.layout != "arterial":
         raise UserError(f"{where}: key 'road.layout': the highway backend builds 'arterial' roads only, "
@@ -79,7 +79,7 @@ class HighwaySimulator:
         self.config = config_from_spec(spec)
         self.dt = spec.dt
         self.road = road_geometry(spec.road.length, spec.road.width, spec.road.lanes, spec.road.sidewalk_width)
-        self.env = DenseTrafficEnv(self.config, render_mode="rgb_array")
+        self.env = HeteroHighwayEnv(self.config, render_mode="rgb_array")
         self.frame_index = 0
 
     @property

@@ -53,6 +53,10 @@ class HeteroAgent(Vehicle):
         super().__init__(traffic.road, (s.x[row], s.y[row]), 0.0, float(s.vx[row]))
         self.color = hex_rgb(traffic.color_of(self.AGENT_TYPE, bool(s.is_ego[row])))
 
+    def __repr__(self) -> str:
+        where = f"at {self.position.round(1).tolist()}" if self.alive else "gone"
+        return f"{type(self).__name__} #{self.uid} {where}"
+
     @property
     def _row(self) -> int:
         return self.traffic.row_of(self.uid)
@@ -94,7 +98,7 @@ class HeteroAgent(Vehicle):
         pass  # heading is the direction of motion, derived from the velocity
 
     def act(self, action: dict | str | None = None) -> None:
-        pass  # driven by the vectorised road (`DenseRoad.act`), not per object
+        pass  # driven by the vectorised road (`HeteroRoad.act`), not per object
 
     def step(self, dt: float) -> None:
         pass

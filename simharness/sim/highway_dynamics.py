@@ -147,7 +147,7 @@ def idm_acceleration(v: np.ndarray, v0: np.ndarray, a: np.ndarray, b: np.ndarray
                      s0: np.ndarray, gap: np.ndarray, v_lead: np.ndarray, coolness: float = 0.99) -> np.ndarray:
     """IDM on bumper gaps, softened by the constant-acceleration heuristic (Treiber and Kesting's ACC model).
 
-    (n,) arrays in SI units -> (n,) m/s^2; inf gap means free road. Plain IDM brakes far too hard when
+    Arrays in SI units, broadcast together -> m/s^2; inf gap means free road. Plain IDM brakes far too hard when
     someone cuts in close but faster (a lane-free road does this all the time); the heuristic only
     brakes as hard as keeping the gap open against a non-accelerating leader needs.
     """
@@ -156,7 +156,7 @@ def idm_acceleration(v: np.ndarray, v0: np.ndarray, a: np.ndarray, b: np.ndarray
     lead = np.isfinite(gap)
     g = np.where(lead, np.maximum(gap, 0.01), 1.0)
     a_idm = a * (free - np.where(lead, (s_star / g) ** 2, 0.0))
-    closing = np.where(lead, np.maximum(v - np.where(lead, v_lead, v), 0.0), 0.0)
+    closing = np.where(lead, np.maximum(v - v_lead, 0.0), 0.0)
     a_cah = -closing**2 / (2.0 * g)
     soft = (1 - coolness) * a_idm + coolness * (a_cah + b * np.tanh((a_idm - a_cah) / b))
     return np.maximum(np.where(a_idm >= a_cah, a_idm, soft), -B_EMERGENCY * 1.5)
@@ -211,7 +211,8 @@ def band_gaps(pw_rows: Pairwise, cand_y: np.ndarray, hy_rows: np.ndarray, claim_
     """Gap ahead and leader speed for each row at each candidate lateral offset.
 
     pw_rows: Pairwise restricted to R deciding rows (R, n); cand_y (R, C) m; hy_rows (R,);
-    claims (n,); ahead (R, n) bool; margin (m) as in `find_leaders`. Returns gap (R, C) m (inf: free) and lead speed (R, C) m/s.
+    claims (n,); ahead (R, n) bool; margin (m) as in `find_leaders`.
+    Returns gap (R, C) m (inf: free) and lead speed (R, C) m/s.
     """
     lo = (cand_y - hy_rows[:, None] - margin)[:, :, None]  # (R, C, 1)
     hi = (cand_y + hy_rows[:, None] + margin)[:, :, None]
@@ -222,18 +223,22 @@ def band_gaps(pw_rows: Pairwise, cand_y: np.ndarray, hy_rows: np.ndarray, claim_
     return gap, np.where(np.isfinite(gap), vx[j] if g.shape[2] else 0.0, np.inf)
 
 
-def offset_scores(gap: np.ndarray, v_lead: np.ndarray, v0: np.ndarray, s0: np.ndarray, headway: np.ndarray,
-                  cand_y: np.ndarray, y: np.ndarray, kerb_bias: np.ndarray, kerb_y: float) -> np.ndarray:
+def offset_scores(gap: np.ndarray, v_lead: np.ndarray, v: np.ndarray, v0: np.ndarray, s0: np.ndarray,
+                  headway: np.ndarray, b: np.ndarray, cand_y: np.ndarray, y: np.ndarray, kerb_bias: np.ndarray,
+                  kerb_y: float) -> np.ndarray:
     """Score (R, C) in m/s of each candidate offset: speed one could hold there, minus the cost of moving.
 
-    gap, v_lead, cand_y (R, C); v0, s0, headway, y, kerb_bias (R,) (m/s per carriageway width
-    that slow vehicles give up by staying away from the kerb at kerb_y).
+    gap, v_lead, cand_y (R, C); v, v0, s0, headway, b (comfortable deceleration), y, kerb_bias (R,)
+    (m/s per carriageway width that slow vehicles give up by staying away from the kerb at kerb_y).
+    An offset whose leader would need harder than comfortable braking scores -inf (unsafe).
     """
     free = gap > LOOKAHEAD
     hold = np.where(free, v0[:, None], v_lead + np.maximum(gap - s0[:, None], 0.0) / (headway[:, None] + 0.5))
     hold = np.minimum(hold, v0[:, None])
+    closing = np.maximum(v[:, None] - np.where(free, v[:, None], v_lead), 0.0)
+    unsafe = closing**2 > 2.0 * b[:, None] * np.maximum(gap - s0[:, None], 0.01)
     kerb = kerb_bias[:, None] * np.abs(cand_y - kerb_y) / max(abs(kerb_y) * 2, 1e-6)
-    return hold - LAT_COST * np.abs(cand_y - y[:, None]) - kerb
+    return np.where(unsafe, -np.inf, hold - LAT_COST * np.abs(cand_y - y[:, None]) - kerb)
 
 
 def safe_lateral_moves(move: np.ndarray, vx: np.ndarray, length: np.ndarray, width: np.ndarray,
@@ -273,7 +278,7 @@ def crossing_clear(ped: np.ndarray, s: TrafficState, hx: np.ndarray, hy: np.ndar
     level = (front_j > near_p - 0.3) & (rear_j < far_p + 0.3)
     dist = near_p - front_j
     v = s.vx[None, :]
-    stop = v**2 / (2.0 * s.b_comf[None, :]) + 0.5 * s.s0[None, :] + 0.5 * v
+    stop = v**2 / (1.5 * s.b_comf[None, :]) + 0.5 * s.s0[None, :] + 0.5 * v  # drivers brake below comfort
     approaching = (dist > 0) & (dist < stop)
     blocked = (veh & lat & (level | approaching)).any(axis=1)
     on_road = (lo < half_width) & (hi > -half_width)

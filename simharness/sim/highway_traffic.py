@@ -28,7 +28,7 @@ QUEUE_MAX = 200  # arrivals waiting for room; beyond this new arrivals are dropp
 class Traffic:
     """Agents on a straight carriageway from x = 0 to `length`, y in [-width/2, width/2] (+y left).
 
-    config: the env config (see `DenseTrafficEnv.default_config`): road_length, road_width, lanes,
+    config: the env config (see `HeteroHighwayEnv.default_config`): road_length, road_width, lanes,
     sidewalk_width, speed_limit, demand {type label: veh/h}, crossing_rate, walking_rate (per hour),
     walking_speed, behaviour_spread, speed_dev, lateral_resolution, min_gap_lat, lane_discipline,
     decision_period, ego {type, insert_at, speed, reaction} or None.
@@ -135,7 +135,7 @@ class Traffic:
                ((s.y + ohy)[None, :] > (cand_y - hy - self.min_gap_lat)[:, None])  # (C, n)
         ahead = (s.x - ohx) - (x + hx)  # (n,) bumper gap to agents ahead
         behind = (x - hx) - (s.x + ohx)
-        follower_need = s.s0 + s.vx * s.headway
+        follower_need = s.s0 + s.vx * s.headway + np.maximum(s.vx - cols["v0"], 0) ** 2 / (2 * s.b_comf)
         ok_each = np.where(ahead >= 0, ahead >= cols["s0"], behind >= follower_need)
         ok_each &= (ahead >= 0) | (behind >= 0)
         feasible = ~(band & ~ok_each[None, :]).any(axis=1)
@@ -203,9 +203,10 @@ class Traffic:
             self.try_insert(t, kind, x=float(self.rng.uniform(0.0, self.length)))
 
     def insert_ego(self, agent_type: AgentType, speed: float) -> bool:
-        """The ego enters running traffic a quarter of the way along the road (or the nearest room)."""
-        for frac in (0.25, 0.3, 0.2, 0.35, 0.15, 0.4, 0.1, 0.45, 0.05):
-            if self.try_insert(int(agent_type), VEHICLE, x=frac * self.length, is_ego=True, speed=speed):
+        """The ego enters running traffic a quarter of the way along the road, or at the nearest room."""
+        steps = np.arange(1, int(0.25 * self.length / 2.5) + 1) * 2.5
+        for x in 0.25 * self.length + np.concatenate([[0.0], np.stack([steps, -steps], 1).ravel()]):
+            if self.try_insert(int(agent_type), VEHICLE, x=float(x), is_ego=True, speed=speed):
                 return True
         return False
 
@@ -329,8 +330,8 @@ class Traffic:
         ahead = sees[rows] & (pw.dx[rows] > 0)
         gap, v_lead = dyn.band_gaps(sub, cand, hy[rows], lo, hi, ahead, s.vx, 0.5 * self.min_gap_lat)
         slow = s.v0[rows] < 0.6 * self.speed_limit
-        scores = dyn.offset_scores(gap, v_lead, s.v0[rows], s.s0[rows], s.headway[rows], cand, s.y[rows],
-                                   np.where(slow, 1.5, 0.0), self.half_width)
+        scores = dyn.offset_scores(gap, v_lead, s.vx[rows], s.v0[rows], s.s0[rows], s.headway[rows], s.b_comf[rows],
+                                   cand, s.y[rows], np.where(slow, 1.5, 0.0), self.half_width)
         inside = np.abs(cand) + hy[rows, None] <= self.half_width - EDGE_GAP
         shift = cand - s.y[rows, None]
         reach = (shift <= room_l[rows, None] - self.min_gap_lat) & (shift >= -(room_r[rows, None] - self.min_gap_lat))
@@ -339,7 +340,9 @@ class Traffic:
         ok[:, -1] = inside[:, -1]  # the current plan stays valid while blocked
         scores = np.where(ok, scores, -np.inf)
         best = np.argmax(scores, axis=1)
-        gain = scores[np.arange(rows.size), best] - scores[:, -1]
+        top, plan = scores[np.arange(rows.size), best], scores[:, -1]
+        gain = np.where(np.isfinite(plan), top - np.where(np.isfinite(plan), plan, 0.0), np.inf)
+        gain = np.where(np.isfinite(top), gain, -np.inf)  # nowhere safe: keep the plan
         switch = gain > s.switch_margin[rows]
         s.y_target[rows] = np.where(switch, cand[np.arange(rows.size), best], s.y_target[rows])
 

@@ -1,7 +1,7 @@
-"""`DenseTrafficEnv`: a highway-env environment of dense, mixed, lane-free traffic.
+"""`HeteroHighwayEnv`: a highway-env environment of dense, mixed, lane-free traffic.
 
 Feels like highway-env: a config dict with documented defaults
-(`DenseTrafficEnv.default_config()`), `render_mode="rgb_array"`, `env.road`
+(`HeteroHighwayEnv.default_config()`), `render_mode="rgb_array"`, `env.road`
 with a `RoadNetwork` of straight lanes and `road.vehicles` of per-type
 `Vehicle` subclasses (`highway_agents`). What differs is underneath:
 `road.act()`/`road.step()` move every agent at once on arrays
@@ -36,7 +36,7 @@ def agent_color(agent_type: AgentType, is_ego: bool) -> str:
     return EGO_COLOR if is_ego else TYPE_COLORS[agent_type]
 
 
-class DenseRoad(Road):
+class HeteroRoad(Road):
     """A highway-env `Road` whose agents live in a `Traffic`; `vehicles` are live views, built on access."""
 
     def __init__(self, network: RoadNetwork, traffic: Traffic) -> None:
@@ -57,7 +57,7 @@ class DenseRoad(Road):
     @vehicles.setter
     def vehicles(self, value: list) -> None:
         if value:
-            raise ValueError("agents enter through DenseRoad.traffic (try_insert), not road.vehicles")
+            raise ValueError("agents enter through HeteroRoad.traffic (try_insert), not road.vehicles")
 
     def act(self) -> None:
         pass  # decisions are taken inside Traffic.step, all agents at once
@@ -87,7 +87,7 @@ def make_network(length: float, width: float, lanes: int, sidewalk: float) -> Ro
 class AgentArrayObservation(ObservationType):
     """(count, 8) [present, x, y, vx, vy, length, width, type] of the agents nearest the ego or road centre."""
 
-    def __init__(self, env: DenseTrafficEnv, count: int) -> None:
+    def __init__(self, env: HeteroHighwayEnv, count: int) -> None:
         super().__init__(env)
         self.count = count
 
@@ -106,10 +106,10 @@ class AgentArrayObservation(ObservationType):
         return out
 
 
-class DenseViewer(EnvViewer):
+class HeteroViewer(EnvViewer):
     """highway-env's viewer, centred on the ego (or the middle of the road) at config["view_length"] metres."""
 
-    def __init__(self, env: DenseTrafficEnv) -> None:
+    def __init__(self, env: HeteroHighwayEnv) -> None:
         super().__init__(env)
         self.sim_surface.scaling = env.config["screen_width"] / env.config["view_length"]
         self.sim_surface.centering_position = [0.5, 0.5]
@@ -118,7 +118,7 @@ class DenseViewer(EnvViewer):
         return self.env.view_centre()
 
 
-class DenseTrafficEnv(AbstractEnv):
+class HeteroHighwayEnv(AbstractEnv):
     """Dense mixed traffic without lanes, with crossing and walking pedestrians (see module doc)."""
 
     @classmethod
@@ -190,7 +190,7 @@ class DenseTrafficEnv(AbstractEnv):
     def _reset(self) -> None:
         c = self.config
         self.traffic = Traffic(c, self._traffic_seed or 0, color_of=agent_color)
-        self.road = DenseRoad(make_network(c["road_length"], c["road_width"], int(c["lanes"]), c["sidewalk_width"]),
+        self.road = HeteroRoad(make_network(c["road_length"], c["road_width"], int(c["lanes"]), c["sidewalk_width"]),
                               self.traffic)
         self.traffic.road = self.road
         self.warmup_s = 0.0
@@ -203,6 +203,7 @@ class DenseTrafficEnv(AbstractEnv):
         for _ in range(n_warm):
             self.traffic.step(1.0 / self.sim_frequency)
         self.warmup_s = self.traffic.time
+        self.traffic.emergency_stops = 0  # count from the end of warm-up
         self._maybe_insert_ego()
 
     @property
@@ -242,9 +243,18 @@ class DenseTrafficEnv(AbstractEnv):
             return []
         h = s.headings()
         near = np.flatnonzero((np.abs(s.x - s.x[e]) < 15.0) & ~s.is_ego)
+        m = near.size
         hit = boxes_overlap(np.stack([s.x[near], s.y[near]], -1), h[near], s.length[near], s.width[near],
-                            np.array([s.x[e], s.y[e]]), h[e], s.length[e], s.width[e])
+                            np.tile([s.x[e], s.y[e]], (m, 1)), np.full(m, h[e]), np.full(m, s.length[e]),
+                            np.full(m, s.width[e]))
         return s.agent_id[near[hit]].tolist()
+
+    def step(self, action: np.ndarray | None = None) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        """As highway-env's step, but traffic also runs with no ego (then action is ignored)."""
+        self.time += 1.0 / self.config["policy_frequency"]
+        self._simulate(action)
+        obs = self.observation_type.observe()
+        return obs, self._reward(action), self._is_terminated(), self._is_truncated(), self._info(obs, action)
 
     def _simulate(self, action: np.ndarray | None = None) -> None:
         command = None if action is None else (float(action[0]), float(action[1]))
@@ -281,9 +291,9 @@ class DenseTrafficEnv(AbstractEnv):
         if self.render_mode != "rgb_array":
             return super().render()
         if self.viewer is None:
-            self.viewer = DenseViewer(self)
+            self.viewer = HeteroViewer(self)
         self.viewer.display()
         return np.ascontiguousarray(self.viewer.get_image()[::-1])  # pygame's y points down
 
 
-__all__ = ["AGENT_CLASSES", "PARAMS", "DenseRoad", "DenseTrafficEnv", "make_network"]
+__all__ = ["AGENT_CLASSES", "PARAMS", "HeteroRoad", "HeteroHighwayEnv", "make_network"]

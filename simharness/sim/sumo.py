@@ -12,20 +12,24 @@ uses) and "lateral_offset" (m from the carriageway centre line, positive left).
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import shutil
+import sys
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
+from xml.etree import ElementTree
 
 import numpy as np
 
 from simharness.errors import SimulatorError
 from simharness.scenario import ScenarioSpec
-from simharness.scene import AgentType
+from simharness.scene import DEFAULT_FOOTPRINT, AgentType
 from simharness.sim.base import EgoCommand, Event, Frame, RoadGeometry
 from simharness.sim.sumo_demand import KINEMATICS, agent_type_of, routes_xml
-from simharness.sim.sumo_ego import GhostEgo, ego_start
+from simharness.sim.sumo_ego import GhostEgo, ego_start, free_lateral
 from simharness.sim.sumo_net import Network, build_network
 from simharness.sim.sumo_pedestrians import Crossings
 
@@ -78,12 +82,18 @@ class SumoSimulator:
                 "--collision.action", "warn", "--collision.check-junctions", "true",
                 "--time-to-teleport", "120", "--no-step-log", "true", "--no-warnings", "true",
                 "--duration-log.disable", "true", "--default.action-step-length", f"{self.spec.step_length}",
-                "--max-depart-delay", "30", "--threads", "1", "--log", str(run / "sumo.log"),
-                "--error-log", str(run / "sumo.err")]
+                "--max-depart-delay", "30", "--threads", "1", "--log", str(run / "sumo.log")]
+        for f in (self.net.net_file, rou):  # libsumo crashes the process on malformed XML: check first
+            try:
+                ElementTree.parse(f)
+            except (ElementTree.ParseError, OSError) as e:
+                raise SimulatorError(f"scenario {self.spec.name}, seed {seed}: SUMO input {f.name} is not "
+                                     f"valid XML: {e}") from None
         if self.spec.sublane.lateral_resolution > 0:
             args += ["--lateral-resolution", f"{self.spec.sublane.lateral_resolution}"]
         try:
-            libsumo.start(args)
+            with _stderr_to(run / "sumo.err"):  # SUMO writes load errors to the C stderr, not to its log
+                libsumo.start(args)
         except Exception as e:  # libsumo raises its own TraCIException / FatalTraCIError
             raise SimulatorError(f"scenario {self.spec.name}, seed {seed}: SUMO failed to start: "
                                  f"{self._sumo_said(e)}") from None
@@ -95,6 +105,7 @@ class SumoSimulator:
         self._t = 0.0
         self._ego_controlled = False
         self._ego_in_sumo = False
+        self._ego_lat_v = 0.0
         self._cut_in: set[str] = set()
         self._lane_info = self._read_lanes()
         rng = np.random.default_rng([sumo_seed, 7])
@@ -165,7 +176,7 @@ class SumoSimulator:
         for k in range(steps):
             if recording or self._ego_due:
                 self._control_ego(command, sl)
-            self._crossings.step(libsumo, sl)
+            self._crossings.step(libsumo, sl, look=k == 0)
             try:
                 libsumo.simulationStep()
             except Exception as e:
@@ -218,6 +229,7 @@ class SumoSimulator:
             v = float(np.clip(libsumo.vehicle.getSpeed(EGO_ID) + a * sl, 0.0, vmax))
             libsumo.vehicle.setSpeed(EGO_ID, v)
             lat_v = float(np.clip(command.lateral_velocity, -vlat, vlat))
+            self._ego_lat_v = lat_v
             if lat_v != 0.0:
                 lane = libsumo.vehicle.getLaneID(EGO_ID)
                 half = libsumo.lane.getWidth(lane) / 2 - libsumo.vehicle.getWidth(EGO_ID) / 2
@@ -237,7 +249,17 @@ class SumoSimulator:
                             next(r for r, e in self.net.routes.items() if e[0] == cw.edge),
                             typeID=f"{self.spec.ego.type}__ego", depart="now", departLane="0",
                             departPos=f"{pos:.2f}", departSpeed=f"{self.spec.ego.speed:.2f}")
+        # Enter now at the freest lateral spot (a plain insertion may wait seconds for a safe gap).
+        ids = libsumo.vehicle.getIDList()
+        xy = np.array([libsumo.vehicle.getPosition(v) for v in ids], float).reshape(len(ids), 2)
+        width = np.array([libsumo.vehicle.getWidth(v) for v in ids], float)
+        length, ego_w = DEFAULT_FOOTPRINT[t]
+        lat = free_lateral(cw, pos, xy, width, ego_w)
+        front = cw.start + cw.direction * (pos + length / 2) + cw.right * (cw.centre_offset - lat)
+        angle = math.degrees(math.atan2(cw.direction[0], cw.direction[1])) % 360.0
+        libsumo.vehicle.moveToXY(EGO_ID, cw.edge, -1, float(front[0]), float(front[1]), angle, 2)
         libsumo.vehicle.setColor(EGO_ID, (255, 0, 0, 255))
+        self._ego_lat_v = 0.0
         self._ego_in_sumo = True
 
     def _update_cut_in(self) -> None:
@@ -314,12 +336,15 @@ class SumoSimulator:
             gx = self._ghost.state()
             agent_id = np.append(agent_id, EGO_ID)
             xy = np.vstack([xy, gx["xy"][None]])
-            heading, sim_heading = np.append(heading, gx["heading"]), np.append(sim_heading, gx["heading"])
+            heading, sim_heading = np.append(heading, gx["heading"]), np.append(sim_heading, gx["sim_heading"])
             speed, lateral = np.append(speed, gx["speed"]), np.append(lateral, gx["lateral"])
             tl = np.vstack([tl, [[gx["type"], gx["length"], gx["width"]]]])
             ego = n
         elif EGO_ID in ids:
             ego = ids.index(EGO_ID)
+            if self._ego_controlled:  # SUMO reports a lane-aligned angle for a harness-moved ego
+                heading[ego] = sim_heading[ego] + math.atan2(self._ego_lat_v, max(float(speed[ego]), 1e-3))
+                speed[ego] = math.hypot(float(speed[ego]), self._ego_lat_v)
         return Frame(
             t=round(self._t, 6), agent_id=agent_id.astype(str), agent_type=tl[:, 0].astype(np.int8),
             xy=xy.astype(np.float32), heading=heading.astype(np.float32), speed=speed.astype(np.float32),
@@ -331,6 +356,20 @@ class SumoSimulator:
     def _drain_events(self) -> list[Event]:
         out, self._events = self._events, []
         return out
+
+
+@contextlib.contextmanager
+def _stderr_to(path: Path) -> Iterator[None]:
+    """Redirect the process's file descriptor 2 (C-level stderr) into `path` for the block."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with open(path, "ab") as f:
+        os.dup2(f.fileno(), 2)
+        try:
+            yield
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
 
 
 def libsumo_time_safe() -> float:

@@ -28,6 +28,22 @@ def ego_start(net: Network) -> tuple[Carriageway, float]:
     return cw, float(min(0.2 * cw.length, 60.0))
 
 
+def free_lateral(cw: Carriageway, pos: float, xy: np.ndarray, width: np.ndarray, own_width: float) -> float:
+    """Lateral offset (m, + left) at `pos` along `cw` with the most clearance to agents within 15 m.
+
+    xy (n, 2) world centres, width (n,) of the agents already there.
+    """
+    rel = xy - cw.start
+    s, lat = rel @ cw.direction, cw.centre_offset - rel @ cw.right
+    half = cw.width / 2 - own_width / 2
+    cand = np.linspace(-half, half, 31)
+    near = np.abs(s - pos) < 15.0
+    if not near.any():
+        return 0.0
+    gap = np.abs(cand[:, None] - lat[near][None]) - width[near][None] / 2  # (31, m)
+    return float(cand[np.argmax(gap.min(1))])
+
+
 class GhostEgo:
     """Kinematic ego on a straight line: position s (m) along `cw`, lateral offset (m, + left), speed."""
 
@@ -51,13 +67,7 @@ class GhostEgo:
 
     def place(self, xy: np.ndarray, width: np.ndarray) -> None:
         """On entry: the lateral spot with the most clearance to agents within 15 m along the road."""
-        s, lat = self._frame_coords(xy)
-        half = self.cw.width / 2 - self.width / 2
-        cand = np.linspace(-half, half, 31)
-        near = np.abs(s - self.s) < 15.0
-        if near.any():
-            gap = np.abs(cand[:, None] - lat[near][None]) - width[near][None] / 2  # (31, m)
-            self.lat = float(cand[np.argmax(gap.min(1))])
+        self.lat = free_lateral(self.cw, self.s, xy, width, self.width)
         self._placed = True
 
     def advance(self, command: EgoCommand | None, dt: float, xy: np.ndarray, heading: np.ndarray,
@@ -102,5 +112,6 @@ class GhostEgo:
     def state(self) -> dict[str, float | np.ndarray]:
         c = self.cw
         xy = c.start + c.direction * self.s + c.right * (c.centre_offset - self.lat)
-        return {"xy": xy, "heading": self.heading, "speed": float(np.hypot(self.v, self.lat_v)),
+        line = float(np.arctan2(c.direction[1], c.direction[0]))
+        return {"xy": xy, "heading": self.heading, "sim_heading": line, "speed": float(np.hypot(self.v, self.lat_v)),
                 "lateral": self.lat, "type": float(int(self.type)), "length": self.length, "width": self.width}

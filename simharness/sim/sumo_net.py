@@ -4,7 +4,8 @@ Layouts (world frame, metres, right-hand traffic):
 - "arterial": edge "main" from (0, 0) to (length, 0); one direction is centred on y = 0,
   with `bidirectional` the two carriageways ("main" eastbound, "back" westbound) meet at y = 0.
 - "intersection": four arms of `length` meeting at (0, 0); edges "<arm>_in" / "<arm>_out" for
-  arms w, e, s, n, each direction one carriageway of `width`.
+  arms w, e, s, n, each direction one carriageway of `width`; the w-e road has priority over
+  the s-n road (an unsignalised crossing of a main and a minor road).
 Every edge is straight, so positions along it are plain projections (used for pedestrian gaps).
 """
 
@@ -116,6 +117,7 @@ def build_network(road: RoadSpec, folder: Path) -> Network:
     (folder / "net.edg.xml").write_text(
         "<edges>\n" + "".join(
             f'  <edge id="{e}" from="{a}" to="{b}" numLanes="{road.lanes}" speed="{road.speed_limit:.3f}" '
+            f'priority="{2 if e[0] in "mbwe" else 1}" '
             f'spreadType="{spread}">{_lanes_xml(road.width, road.lanes)}</edge>\n'
             for e, a, b in edges) + "</edges>\n")
     net_file = folder / "net.net.xml"

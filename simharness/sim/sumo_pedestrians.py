@@ -36,6 +36,7 @@ class Crosser:
     then: Carriageway | None  # the opposite carriageway still to cross
     prev_lat: float = 0.0
     waited: float = 0.0
+    go: bool = False
 
 
 def _opposite(net: Network, cw: Carriageway) -> Carriageway | None:
@@ -64,6 +65,8 @@ class Crossings:
         self._routes: set[str] = set()
         self._clock = 0.0
         self._internal: list[str] | None = None
+        self._traffic: _EdgeTraffic | None = None
+        self.look_ahead = spec.dt  # s of walking covered by one gap decision
         self.walkers_prefix = "pedestrian."
 
     # ------------------------------------------------------------------ ids
@@ -97,8 +100,12 @@ class Crossings:
             c.prev_lat = c.lat
 
     # ------------------------------------------------------------------ stepping
-    def step(self, libsumo: object, dt: float) -> None:
-        """One SUMO step's worth: spawn arrivals, move crossers whose next band is clear."""
+    def step(self, libsumo: object, dt: float, look: bool = True) -> None:
+        """One SUMO step's worth: spawn arrivals, move crossers whose next band is clear.
+
+        look: re-read the traffic for gap checks (once per recorded frame; in between, a crosser keeps
+        the decision it took, which is what a person does over 0.2 s).
+        """
         if self.rate <= 0 and not self.active and not self.waiting:
             return
         self._clock += dt
@@ -109,18 +116,27 @@ class Crossings:
             return
         if self._internal is None:
             self._internal = [e for e in libsumo.edge.getIDList() if e.startswith(":")]
-        traffic = _EdgeTraffic(libsumo, self._internal)
+        if look or self._traffic is None:
+            self._traffic = _EdgeTraffic(libsumo, self._internal)
+        traffic, reach = self._traffic, self.speed * self.look_ahead
         for c in list(self.waiting):
-            if traffic.clear(c.cw, c.pos, c.lat, c.lat, self.speed):
+            if (look or c.go) and traffic.clear(c.cw, c.pos, c.lat, c.lat, self.speed):
                 self._enter(libsumo, c)
                 self.waiting.remove(c)
+        if look and self.active:  # SUMO may have removed one (teleport after a long wait): forget it
+            present = set(libsumo.vehicle.getIDList())
+            for c in [c for c in self.active if c.vid not in present]:
+                self.active.remove(c)
+                self._by_vid.pop(c.vid, None)
         for c in list(self.active):
-            step = math.copysign(min(self.speed * dt, abs(c.target - c.lat)), c.target - c.lat)
             if abs(c.target - c.lat) < 1e-6:
-                self._leave(libsumo, traffic, c)
+                self._leave(libsumo, c)
                 continue
-            if traffic.clear(c.cw, c.pos, c.lat, c.lat + step, self.speed, exclude=c.vid):
-                c.lat += step
+            if look:  # decide for the frame: is the band up to one frame's walk ahead clear?
+                ahead = c.lat + math.copysign(min(reach, abs(c.target - c.lat)), c.target - c.lat)
+                c.go = traffic.clear(c.cw, c.pos, c.lat, ahead, self.speed, exclude=c.vid)
+            if c.go:
+                c.lat += math.copysign(min(self.speed * dt, abs(c.target - c.lat)), c.target - c.lat)
                 c.waited = 0.0
             else:
                 c.waited += dt
@@ -134,6 +150,7 @@ class Crossings:
             pos = float(self.rng.uniform(0.2, 0.8) * cw.length)
         else:  # intersection arm: a crossing 6 m before the junction
             pos = cw.length - cw.width - 6.0
+        pos += float(self.rng.uniform(-1.5, 1.5))  # a crosswalk is 3 m wide: people do not queue in single file
         half = cw.width / 2 - CURB
         return Crosser(f"xped{self._count}", f"xped{self._count}.0", cw, pos, -half, half, _opposite(self.net, cw))
 
@@ -160,9 +177,13 @@ class Crossings:
 
     def _place(self, ls: object, c: Crosser) -> None:
         x, y, angle = self._xy(c)
-        ls.vehicle.moveToXY(c.vid, c.cw.edge, -1, x, y, angle, 2)
+        try:
+            ls.vehicle.moveToXY(c.vid, c.cw.edge, -1, x, y, angle, 2)
+        except ls.TraCIException:  # SUMO removed it this step (arrived or teleported): it leaves the road
+            self.active.remove(c)
+            self._by_vid.pop(c.vid, None)
 
-    def _leave(self, ls: object, traffic: _EdgeTraffic, c: Crosser) -> None:
+    def _leave(self, ls: object, c: Crosser) -> None:
         """Reached the far edge of this carriageway: go on to the opposite one, or off the road."""
         if c.vid in ls.vehicle.getIDList():
             ls.vehicle.remove(c.vid)

@@ -1,0 +1,75 @@
+"""RNN-ED (Seq2Seq): an LSTM encoder-decoder on the target's own history, the paper's first baseline.
+
+The target's positions (x, y) in its own frame are embedded, encoded by an LSTM, and the last hidden
+state, repeated over the horizon, drives an LSTM decoder that emits a bivariate Gaussian per future
+step. No neighbours: it measures how far a model gets without interactions.
+
+Also here, because every baseline shares them: `positions` (the position inputs of any Omega tensor) and
+`gaussian_head` (decoder outputs -> (mu_x, mu_y, sigma_x, sigma_y, rho) in metres).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import torch
+from torch import nn
+from torch.nn import functional as fn
+
+from predictor.features import FEATURES
+
+_XY = [FEATURES.index("x"), FEATURES.index("y")]
+_PRESENT = FEATURES.index("present")
+
+
+def positions(omega: torch.Tensor, scale: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """Omega (..., H, D) -> (positions (..., H, 2) divided by `scale`, present (..., H) bool)."""
+    return omega[..., _XY] / scale, omega[..., _PRESENT] > 0.5
+
+
+def gaussian_head(o: torch.Tensor, scale: float) -> torch.Tensor:
+    """Raw outputs (..., 5) -> (mu_x, mu_y, sigma_x, sigma_y, rho) (..., 5): metres, sigma > 0, |rho| < 1."""
+    mu = o[..., :2] * scale
+    sigma = (fn.softplus(o[..., 2:4]) + 1e-3) * scale
+    return torch.cat([mu, sigma, torch.tanh(o[..., 4:5])], -1)
+
+
+@dataclasses.dataclass(frozen=True)
+class RNNEDConfig:
+    """Sizes; the window fields (history ... horizon_grid) are filled in by training and unused here."""
+
+    history: int = 15
+    future: int = 25
+    embed: int = 32
+    encoder: int = 64
+    decoder: int = 128
+    pos_scale: float = 10.0
+    max_neighbours: int = 12
+    max_horizon: int = 6
+    neighbour_grid: tuple[int, int] = (13, 5)
+    horizon_grid: tuple[int, int] = (7, 5)
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+class RNNED(nn.Module):
+    """forward(batch) -> (B, F, 5) from batch["hist"] (B, H, D) only."""
+
+    name = "rnn-ed"
+
+    def __init__(self, cfg: RNNEDConfig):
+        super().__init__()
+        self.cfg = cfg
+        self.embed = nn.Linear(2, cfg.embed)
+        self.encoder = nn.LSTM(cfg.embed, cfg.encoder, batch_first=True)
+        self.decoder = nn.LSTM(cfg.encoder, cfg.decoder, batch_first=True)
+        self.out = nn.Linear(cfg.decoder, 5)
+
+    def forward(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+        xy, present = positions(batch["hist"], self.cfg.pos_scale)
+        x = fn.leaky_relu(self.embed(xy), 0.1) * present[..., None]  # missing steps carry no input
+        _, (h, _) = self.encoder(x)
+        y, _ = self.decoder(h[0][:, None].expand(-1, self.cfg.future, -1))
+        return gaussian_head(self.out(y), self.cfg.pos_scale)

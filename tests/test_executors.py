@@ -1,0 +1,206 @@
+"""Executors on real Ray (one local instance, 2 CPUs, shared by the module) and the local process pool.
+
+Same data set whatever the executor and the number of workers; a job whose process is killed is run
+again and the data set is whole and identical; a job that always dies is reported by seed while the
+others land, and a rerun finishes only what is missing. Faults are injected by job classes defined
+here (workers import this module by name), never by mocking the executors, Ray or SUMO.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import ray  # the optional extra simharness[ray]; the dev extra installs it
+
+from simharness import generation
+from simharness.errors import SimulatorError, UserError
+from simharness.executors import Executor, LocalExecutor, RayExecutor, make_executor, start_local_ray
+from simharness.generation import SceneJob, generate
+from simharness.io.parquet import TMP_PREFIX, read_manifest
+from simharness.scenario import load_scenario
+
+SEEDS = [0, 1, 2]
+
+
+@pytest.fixture(scope="module")
+def ray_instance():
+    """One local Ray instance (2 CPUs) for the module: executors join it and leave it running."""
+    start_local_ray(2, object_store_memory=200 * 2**20)
+    yield
+    ray.shutdown()
+
+
+@pytest.fixture(scope="module")
+def spec():
+    """The shipped dense arterial, short: 10 s warm-up, 4 s recorded (about a second per scene)."""
+    return load_scenario("sumo_arterial_dense").with_overrides({"warmup": 10.0, "duration": 4.0})
+
+
+def dataset_bytes(folder: Path) -> dict[str, bytes]:
+    """Every file of a data set (shards and manifest); the run log is run details, not data."""
+    return {p.name: p.read_bytes() for p in sorted(folder.iterdir()) if p.name != "runs.jsonl"}
+
+
+@pytest.fixture(scope="module")
+def reference(spec, tmp_path_factory) -> dict[str, bytes]:
+    """The data set of SEEDS from the local pool with one worker."""
+    out = tmp_path_factory.mktemp("reference") / "ds"
+    s = generate(spec, SEEDS, out, workers=1, executor="local", progress=False)
+    assert s["done"] == len(SEEDS) and not s["failed"], s
+    return dataset_bytes(out)
+
+
+# ---------------------------------------------------------------------- fault-injecting job functions
+@dataclasses.dataclass(frozen=True)
+class KilledOnFirstTry(SceneJob):
+    """Seed 1 starts its simulator, leaves half a shard and SIGKILLs its own process on its first try."""
+
+    def __call__(self, seed: int):
+        marker = self.out.parent / f"killed-seed{seed}"
+        if seed == 1 and not marker.exists():
+            from simharness.sim import make_simulator
+
+            marker.touch()
+            sim = make_simulator(self.spec)
+            sim.reset(seed)
+            sim.step()
+            (self.out / f"{TMP_PREFIX}scene-{seed:06d}.parquet.half").write_bytes(b"PAR1 half a shard")
+            os.kill(os.getpid(), signal.SIGKILL)
+        return super().__call__(seed)
+
+
+@dataclasses.dataclass(frozen=True)
+class AlwaysKilled(SceneJob):
+    """Seed 2's process dies every time (counted in a file: one line per attempt)."""
+
+    def __call__(self, seed: int):
+        if seed == 2:
+            with open(self.out.parent / "attempts-seed2", "a") as f:
+                f.write("x\n")
+            os._exit(11)
+        return super().__call__(seed)
+
+
+def flaky(job: tuple[str, Path]):
+    """Small jobs for the retry policy: ok, a bug, a simulator crash, a dead process."""
+    kind, folder = job
+    with open(folder / f"{kind}.attempts", "a") as f:
+        f.write("x\n")
+    if kind == "bug":
+        raise ValueError("a bug is not retried")
+    if kind == "bad-input":
+        raise UserError("bad input is not retried")
+    if kind == "sim":
+        raise SimulatorError("simulator crashed")
+    if kind == "die":
+        os._exit(3)
+    return os.getpid()
+
+
+def executor(name: str, workers: int = 2) -> Executor:
+    return make_executor(name, workers)
+
+
+# ---------------------------------------------------------------------- tests
+def test_make_executor_ray_and_its_errors(monkeypatch) -> None:
+    pool = make_executor("ray", 3, address="auto")
+    assert isinstance(pool, RayExecutor) and isinstance(pool, Executor) and pool.workers == 3
+    assert pool.address == "auto" and pool.max_retries == 2
+    with pytest.raises(UserError, match="only used with --executor ray"):
+        make_executor("local", 2, address="auto")
+    with pytest.raises(UserError, match="positive"):
+        make_executor("ray", 0)
+    monkeypatch.setitem(sys.modules, "ray", None)  # what `import ray` meets where the extra is not installed
+    with pytest.raises(UserError, match=r"pip install 'simharness\[ray\]'"):
+        make_executor("ray", 2)
+
+
+def test_embedded_default_never_imports_ray() -> None:
+    code = ("import sys, math; from simharness import cli, generation, closedloop, sweep; "
+            "from simharness.executors import make_executor; "
+            "print(list(make_executor('local', 1).map_unordered(math.sqrt, [4.0]))[0].value, 'ray' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.split() == ["2.0", "False"]
+
+
+@pytest.mark.parametrize("name", ["local", "ray"])
+def test_retry_policy_is_the_same_on_both_executors(name, ray_instance, tmp_path: Path) -> None:
+    kinds = ["ok", "bug", "bad-input", "sim", "die"]
+    results = {r.job[0]: r for r in executor(name).map_unordered(flaky, [(k, tmp_path) for k in kinds])}
+    attempts = {k: len((tmp_path / f"{k}.attempts").read_text().split()) for k in kinds}
+    # A dead process and a simulator crash are run again (2 retries); a bug or bad input never.
+    assert attempts == {"ok": 1, "bug": 1, "bad-input": 1, "sim": 3, "die": 3}
+    assert {k: r.attempts for k, r in results.items()} == attempts
+    assert results["ok"].ok and results["ok"].value != os.getpid()
+    assert results["bug"].error == "ValueError: a bug is not retried" and "Traceback" in results["bug"].traceback
+    assert results["bad-input"].error == "UserError: bad input is not retried"
+    assert results["sim"].error == "SimulatorError: simulator crashed"
+    assert results["die"].error.startswith("worker process died")
+
+
+def test_ray_task_runs_each_job_in_a_fresh_process(ray_instance) -> None:
+    pids = [r.value for r in RayExecutor(2).map_unordered(_pid, range(4))]
+    assert len(set(pids)) == 4 and os.getpid() not in pids  # max_calls=1: one job per worker process
+
+
+def _pid(_: int) -> int:
+    return os.getpid()
+
+
+def test_ray_writes_the_same_data_set_as_the_local_pool(spec, reference, ray_instance, tmp_path: Path) -> None:
+    out = tmp_path / "ds"
+    s = generate(spec, SEEDS, out, workers=2, executor="ray", progress=False)
+    assert s["done"] == len(SEEDS) and not s["failed"], s
+    got = dataset_bytes(out)
+    assert sorted(got) == ["manifest.json", "scene-000000.parquet", "scene-000001.parquet", "scene-000002.parquet"]
+    assert got == reference  # shards and manifest byte for byte: 2 Ray workers vs 1 local process
+
+
+@pytest.mark.parametrize("name", ["ray", "local"])
+def test_killed_simulator_is_retried_and_data_set_is_whole(name, spec, reference, ray_instance, tmp_path: Path,
+                                                          monkeypatch) -> None:
+    monkeypatch.setattr(generation, "SceneJob", KilledOnFirstTry)
+    out = tmp_path / "ds"
+    s = generate(spec, SEEDS, out, workers=2, executor=name, progress=False)
+    assert (tmp_path / "killed-seed1").exists()  # the first try really died
+    assert s["done"] == len(SEEDS) and not s["failed"], s
+    assert dataset_bytes(out) == reference  # no partial shard, no duplicate, same bytes
+    assert not list(out.glob(TMP_PREFIX + "*"))
+
+
+@pytest.mark.parametrize("name", ["ray", "local"])
+def test_always_dying_job_is_reported_by_seed_and_rerun_finishes_it(name, spec, reference, ray_instance,
+                                                                    tmp_path: Path, monkeypatch) -> None:
+    out = tmp_path / "ds"
+    with monkeypatch.context() as m:
+        m.setattr(generation, "SceneJob", AlwaysKilled)
+        s = generate(spec, SEEDS, out, workers=2, executor=name, progress=False)
+    assert list(s["failed"]) == [2] and s["failed"][2].startswith("worker process died")
+    assert "after 3 attempts" in s["failed"][2]
+    assert len((tmp_path / "attempts-seed2").read_text().split()) == 3  # 1 try + max_retries, then given up
+    assert s["done"] == 2 and read_manifest(out)["info"]["seeds"] == [0, 1]
+    assert sorted(p.name for p in out.glob("scene-*")) == ["scene-000000.parquet", "scene-000001.parquet"]
+    again = generate(spec, SEEDS, out, workers=2, executor=name, progress=False)
+    assert again["skipped"] == 2 and again["done"] == 1 and not again["failed"]  # only the missing seed runs
+    assert dataset_bytes(out) == reference
+
+
+def test_cli_generate_on_its_own_ray_instance(tmp_path: Path) -> None:
+    """The CLI path end to end on its own Ray instance (started and stopped by the command)."""
+    scenario = tmp_path / "bad.toml"
+    text = (Path(load_scenario("sumo_arterial_dense").path).read_text()
+            .replace("duration = 60.0", "duration = 2.0").replace("warmup = 90.0", "warmup = 5.0"))
+    scenario.write_text(text)
+    out = tmp_path / "ds"
+    run = subprocess.run([sys.executable, "-m", "simharness", "generate", str(scenario), "--seeds", "0-1", "--out",
+                          str(out), "--executor", "ray", "--workers", "2"], capture_output=True, text=True,
+                         timeout=300)
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert "2 scenes generated" in run.stdout
+    assert read_manifest(out)["num_scenes"] == 2
