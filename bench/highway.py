@@ -125,7 +125,7 @@ def scenario_figures(seeds: list[int]) -> dict:
         "collisions_per_1000_agent_min": {k: round(1000 * totals[k] / totals["agent_min"], 3)
                                           for k in ("vv", "vp", "pp")},
         "collision_counts": {k: totals[k] for k in ("vv", "vp", "pp")},
-        "emergency_stops_per_1000_agent_min": round(1000 * totals["emergency"] / totals["agent_min"], 1),
+        "hard_braking_agent_steps_per_1000_agent_min": round(1000 * totals["emergency"] / totals["agent_min"], 1),
         "small_passes_large_per_scene": round(totals["passes"] / len(seeds), 1),
         "sim_seconds_per_wall_second": round(len(seeds) * (spec.duration + spec.warmup) / totals["seconds"], 1),
     }

@@ -51,6 +51,9 @@ class ModelPredictor:
         batch = store.batch(np.arange(len(targets)))
         with torch.no_grad():
             out = self.model(batch.tensors()).numpy().astype(np.float64)  # (M, F, 5) local, metres
+            # Sampling models (Social-GAN) also give K futures (M, K, F, 2): Forecast.modes, for best-of-K scores.
+            samples = self.model.sample(batch.tensors()).numpy().astype(np.float64) if hasattr(
+                self.model, "sample") else None
         step, fm = store.step, out.shape[1]
         if horizon > fm * step:
             raise ValueError(f"{self.name} predicts {fm * step} frames of {history.dt:g} s, asked for {horizon}")
@@ -73,5 +76,11 @@ class ModelPredictor:
         wxy = c * s * (cxx - cyy) + (c * c - s * s) * cxy
         wsx, wsy = np.sqrt(wxx), np.sqrt(wyy)
         sigma_rho = np.stack([wsx * scale, wsy * scale, wxy / (wsx * wsy)], -1)
+        modes = None
+        if samples is not None:
+            samples = np.concatenate([np.zeros_like(samples[:, :, :1]), samples], 2)
+            samples = samples[:, :, j0] * (1 - w[None]) + samples[:, :, j0 + 1] * w[None]
+            modes = (to_world(samples, origin[:, None], heading[:, None]) * scale).astype(np.float32)
+        gaussian = getattr(self.model, "gaussian", True)  # False: the model gives samples, not a density
         return Forecast(agent_id=history.agent_id[targets], mean=mean.astype(np.float32), dt=history.dt,
-                        sigma_rho=sigma_rho.astype(np.float32))
+                        sigma_rho=sigma_rho.astype(np.float32) if gaussian else None, modes=modes)

@@ -75,7 +75,7 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
           warmup_epochs: int = 2, batch_size: int = 128, lr: float = 1e-3, seed: int = 0,
           max_samples: int | None = None, window: WindowConfig | None = None,
           model_config: dict[str, Any] | None = None, threads: int | None = None,
-          progress: bool = True) -> dict[str, Any]:
+          progress: bool = True, max_val_samples: int | None = None) -> dict[str, Any]:
     """Train `model` on the train split of `data`, keep the best on the val split -> summary dict.
 
     Writes out/model.pt, out/config.json, out/log.csv. Returns {"best_epoch", "best_val", "val_history",
@@ -100,6 +100,8 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
     train_idx, val_idx = store.samples_of(split["train"]), store.samples_of(split["val"])
     if max_samples is not None and len(train_idx) > max_samples:
         train_idx = np.sort(rng.choice(train_idx, max_samples, replace=False))
+    if max_val_samples is not None and len(val_idx) > max_val_samples:  # a fixed subset, scored every epoch
+        val_idx = np.sort(rng.choice(val_idx, max_val_samples, replace=False))
     if len(train_idx) == 0 or len(val_idx) == 0:
         raise UserError(f"{data}: no complete {window.history_s:g} s + {window.future_s:g} s windows in the "
                         f"{'train' if len(train_idx) == 0 else 'val'} scenes; record longer scenes")
@@ -117,6 +119,8 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
                         "max_samples": max_samples, "train_samples": int(len(train_idx)),
                         "val_samples": int(len(val_idx))},
               "versions": versions()}
+    if max_val_samples is not None:
+        config["train"]["max_val_samples"] = max_val_samples
     config["config_hash"] = hashlib.sha256(
         json.dumps({k: config[k] for k in ("model", "model_config", "window", "train", "seed")},
                    sort_keys=True).encode()).hexdigest()[:16]

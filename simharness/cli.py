@@ -108,9 +108,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="override how background agents treat the ego")
 
     b = sub.add_parser("benchmark", parents=[executor_args], help="train and compare every method (paper tables)")
-    b.set_defaults(func=_call("predictor.benchmark:benchmark_command"))
+    b.set_defaults(func=_call("simharness.benchmark:benchmark_command"))
     b.add_argument("--data", type=Path, required=True)
-    b.add_argument("--profile", choices=["quick", "full"], default="quick")
+    b.add_argument("--profile", choices=["quick", "medium", "full"], default="quick",
+                   help="training budget: quick (tests), medium (~10-15 CPU-minutes), full (the paper's 16 epochs)")
     b.add_argument("--out", type=Path, default=Path("runs/benchmark"))
 
     i = cmd("import", "simharness.io.importers:import_command", "convert a public data set into ours")

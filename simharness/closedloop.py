@@ -40,10 +40,10 @@ from simharness.scene import AgentType, Forecast, Predictor, Scene
 from simharness.sim.base import Frame, RoadGeometry, scene_from_frames
 
 REFERENCE_EGOS = ("oracle", "none", "blind")  # not predictors: handled here, not by load_predictor
-SCALARS = ("collided", "collisions", "at_fault_collided", "at_fault_collisions", "near_miss", "near_misses_per_min", "min_gap_m", "background_collisions",
-           "background_collisions_per_1000_agent_min", "progress_m", "mean_speed", "time_stuck_s",
-           "accel_rms", "jerk_rms", "lat_accel_max", "online_ade", "online_fde", "online_ade_rmse",
-           "online_fde_rmse", "realtime_factor")
+SCALARS = ("collided", "collisions", "at_fault_collided", "at_fault_collisions", "near_miss",
+           "near_misses_per_min", "min_gap_m", "background_collisions", "background_collisions_per_1000_agent_min",
+           "progress_m", "mean_speed", "time_stuck_s", "accel_rms", "jerk_rms", "lat_accel_max", "online_ade",
+           "online_fde", "online_ade_rmse", "online_fde_rmse", "realtime_factor")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -345,6 +345,10 @@ def bootstrap_ci(values: Sequence[float], resamples: int = 2000, level: float = 
             "n": int(x.size)}
 
 
+_RENAMED = ("collided", "at_fault_collided", "near_miss", "progress_m", "online_ade", "online_fde",
+            "online_ade_rmse", "online_fde_rmse")
+
+
 def aggregate(episodes: Sequence[dict[str, Any]], seed: int = 0) -> dict[str, Any]:
     """Scores over episodes: each scalar's mean with a 95% bootstrap CI; the issue's keys first.
 
@@ -374,8 +378,7 @@ def aggregate(episodes: Sequence[dict[str, Any]], seed: int = 0) -> dict[str, An
         "online_ade_rmse": col["online_ade_rmse"],
         "online_fde_rmse": col["online_fde_rmse"],
         "online_by_type": online_by_type,
-        **{k: v for k, v in col.items() if k not in ("collided", "at_fault_collided", "near_miss", "progress_m", "online_ade",
-                                                      "online_fde", "online_ade_rmse", "online_fde_rmse")},
+        **{k: v for k, v in col.items() if k not in _RENAMED},
         "bootstrap": {"resamples": 2000, "level": 0.95, "seed": seed},
     }
 

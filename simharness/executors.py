@@ -20,6 +20,7 @@ import dataclasses
 import logging
 import multiprocessing as mp
 import os
+import re
 import sys
 import time
 import traceback
@@ -204,7 +205,8 @@ class RayExecutor:
             return JobResult(job, value=ray.get(ref)), False
         except ray.exceptions.RayTaskError as e:  # the job raised: Ray re-raises it wrapped
             cause = e.cause if isinstance(e.cause, BaseException) else e
-            return JobResult(job, error=_one_line(cause), traceback=str(e)), isinstance(cause, self.retry_on)
+            tb = re.sub(r"\x1b\[[0-9;]*m", "", getattr(e, "traceback_str", "") or str(e))  # no colour codes
+            return JobResult(job, error=_one_line(cause), traceback=tb), isinstance(cause, self.retry_on)
         except ray.exceptions.TaskCancelledError as e:
             return JobResult(job, error=f"cancelled ({type(e).__name__})"), False
         except ray.exceptions.RayError as e:  # worker crashed, killed for memory, node lost, object lost

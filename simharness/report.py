@@ -402,3 +402,38 @@ def plot_sweep(points: list[dict], axis: str, path: Path | str, title: str = "",
     path.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(path, buf.getvalue())  # a figure is never seen half-written either
     return path
+
+
+# ---------------------------------------------------------------------- benchmark figures (H7)
+def plot_method_bars(rows: dict[str, tuple[float, float, float]], path: Path | str, units: str = "m") -> Path:
+    """Per method: ADE-RMSE and FDE-RMSE bars (left) and training wall time (right).
+
+    rows: label -> (ADE-RMSE, FDE-RMSE in `units`, training seconds).
+    """
+    import io
+
+    from simharness.io.parquet import atomic_write_bytes
+
+    path = Path(path)
+    names = list(rows)
+    vals = np.array([rows[n] for n in names], dtype=np.float64).reshape(-1, 3)
+    x = np.arange(len(names))
+    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(11, 4), dpi=120, gridspec_kw={"width_ratios": [2, 1]})
+    ax.bar(x - 0.2, vals[:, 0], 0.4, label="ADE (RMSE)")
+    ax.bar(x + 0.2, vals[:, 1], 0.4, label="FDE (RMSE)")
+    ax.set_ylabel(f"error ({units})")
+    ax2.bar(x, vals[:, 2], 0.6, color="#7f7f7f")
+    ax2.set_ylabel("training wall time (s)")
+    for a in (ax, ax2):
+        a.set_xticks(x, names, rotation=35, ha="right", fontsize=8)
+        a.grid(axis="y", alpha=0.3)
+    ax.legend(fontsize=8)
+    ax.set_title("prediction error per method")
+    ax2.set_title("training time")
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png")
+    plt.close(fig)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(path, buf.getvalue())
+    return path

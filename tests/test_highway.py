@@ -102,7 +102,7 @@ def test_small_vehicles_filter_past_large_ones():
 
 
 def test_pedestrians_cross_and_are_not_hit():
-    spec = short(duration=20.0, **{"pedestrians.crossing_rate": 900.0})
+    spec = short(duration=30.0, **{"pedestrians.crossing_rate": 900.0})
     crossed = 0
     for seed in range(3):
         scene, _ = run(spec, seed)
@@ -112,7 +112,8 @@ def test_pedestrians_cross_and_are_not_hit():
         ever_left = np.where(scene.valid[peds], y, -np.inf).max(1)
         ever_right = np.where(scene.valid[peds], y, np.inf).min(1)
         h = spec.road.width / 2
-        crossed += int(((first < -h) & (ever_left > h)).sum() + ((first > h) & (ever_right < -h)).sum())
+        # from a sidewalk across the whole carriageway, to within 1 m of the far edge
+        crossed += int(((first < -h) & (ever_left > h - 1)).sum() + ((first > h) & (ever_right < 1 - h)).sum())
         ev = collision_events(scene.xy, scene.heading, scene.length, scene.width, scene.valid)
         with_ped = (scene.agent_type[ev[:, 1]] == PED) | (scene.agent_type[ev[:, 2]] == PED)
         assert not with_ped.any(), f"seed {seed}: pedestrian hit: {ev[with_ped]}"
@@ -159,6 +160,25 @@ def test_ego_commands_and_reactions():
         hits[reaction] = int(collision_matrix(scene.xy, scene.heading, scene.length, scene.width, scene.valid,
                                               rows=[scene.ego]).sum())
     assert hits["reactive"] == 0 and hits["ignore"] > 0, hits
+
+
+def _cut_ins(scene: Scene, near: float = 20.0) -> int:
+    """Background agents moving sideways into the ego's band within `near` m ahead of its front."""
+    e = scene.ego
+    dx = scene.xy[..., 0] - scene.xy[e, :, 0]
+    band = np.abs(scene.xy[..., 1] - scene.xy[e, :, 1]) < 0.5 * (scene.width[:, None] + scene.width[e])
+    gap = dx - 0.5 * (scene.length[:, None] + scene.length[e])
+    ahead = scene.valid & scene.valid[e] & band & (gap > 0) & (gap < near)
+    ahead[e] = False
+    return int((ahead[:, 1:] & ~band[:, :-1] & scene.valid[:, :-1]).sum())
+
+
+def test_cut_in_setting_cuts_in_front_of_the_ego():
+    counts = {}
+    for reaction in ("reactive", "cut_in"):
+        spec = short(duration=20.0, **{"ego.enabled": True, "ego.reaction": reaction, "ego.speed": 7.0})
+        counts[reaction] = sum(_cut_ins(run(spec, seed, lambda _k: EgoCommand(0.0, 0.0))[0]) for seed in (0, 1))
+    assert counts["cut_in"] >= counts["reactive"] + 3, counts
 
 
 def test_env_feels_like_highway_env():

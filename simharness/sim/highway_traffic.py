@@ -22,6 +22,8 @@ from simharness.sim.highway_dynamics import CROSSING, VEHICLE, WALKING, TrafficS
 
 EDGE_GAP = 0.2  # m kept between a vehicle and the carriageway edge
 PED_SPACING = 1.5  # m along the road between two crossing pedestrians at their start
+CUT_IN_RANGE = 10.0  # m ahead of the ego's front within which background agents cut in (cut_in setting)
+CUT_IN_BONUS = 3.0  # m/s of score for taking the band in front of the ego (cut_in setting)
 QUEUE_MAX = 200  # arrivals waiting for room; beyond this new arrivals are dropped (and counted)
 
 
@@ -332,6 +334,7 @@ class Traffic:
         slow = s.v0[rows] < 0.6 * self.speed_limit
         scores = dyn.offset_scores(gap, v_lead, s.vx[rows], s.v0[rows], s.s0[rows], s.headway[rows], s.b_comf[rows],
                                    cand, s.y[rows], np.where(slow, 1.5, 0.0), self.half_width)
+        scores += self._cut_in_bonus(s, rows, cand, hy)
         inside = np.abs(cand) + hy[rows, None] <= self.half_width - EDGE_GAP
         shift = cand - s.y[rows, None]
         reach = (shift <= room_l[rows, None] - self.min_gap_lat) & (shift >= -(room_r[rows, None] - self.min_gap_lat))
@@ -345,6 +348,17 @@ class Traffic:
         gain = np.where(np.isfinite(top), gain, -np.inf)  # nowhere safe: keep the plan
         switch = gain > s.switch_margin[rows]
         s.y_target[rows] = np.where(switch, cand[np.arange(rows.size), best], s.y_target[rows])
+
+    def _cut_in_bonus(self, s: TrafficState, rows: np.ndarray, cand: np.ndarray, hy: np.ndarray) -> np.ndarray:
+        """(R, C) m/s added, in the cut_in setting, to offsets in front of the ego for agents just ahead of it:
+        they merge into its band the way a driver who has just overtaken does, without yielding to it."""
+        e = self.ego_row
+        if self.ego_reaction != "cut_in" or e < 0:
+            return np.zeros(cand.shape)
+        lead = (s.x[rows] - 0.5 * s.length[rows]) - (s.x[e] + 0.5 * s.length[e])
+        near = (lead > 0) & (lead < CUT_IN_RANGE) & ~s.is_ego[rows]
+        in_band = np.abs(cand - s.y[e]) < hy[rows, None] + hy[e]
+        return np.where(near[:, None] & in_band, CUT_IN_BONUS, 0.0)
 
     def _remove_departed(self) -> None:
         s = self.state

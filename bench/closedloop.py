@@ -1,0 +1,96 @@
+"""Closed-loop benchmark: speed with TraPHic in the loop, and the scorecard of the four egos.
+
+1. Simulated seconds per wall second of one closed-loop episode with TraPHic driving the ego on the
+   dense SUMO arterial (loop only, and including the unrecorded warm-up), with the time split between
+   simulator, predictor and planner. Target: >= 5x real time.
+2. The scorecard of the four egos (traphic, const-vel, oracle, none) over seeds of the stress setting
+   (background reaction "cut_in"), mean [95% bootstrap CI], written with figures to --out.
+
+    .venv/bin/python bench/closedloop.py            # --quick: 6 seeds of 30 s, a few minutes on 2 cores
+    .venv/bin/python bench/closedloop.py --full     # 20 seeds of 60 s
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+from simharness.closedloop import (  # noqa: E402
+    EpisodeJob,
+    LoopConfig,
+    prepare_spec,
+    run_closed_loop,
+    run_episode,
+    scorecard_table,
+    write_run,
+)
+from simharness.errors import UserError  # noqa: E402
+from simharness.report import write_report  # noqa: E402
+from simharness.scenario import load_scenario  # noqa: E402
+
+EGOS = ("traphic", "const-vel", "oracle", "none")
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--quick", action="store_true", help="6 seeds of 30 s (default)")
+    g.add_argument("--full", action="store_true", help="20 seeds of 60 s")
+    p.add_argument("--scenario", default="sumo_arterial_dense")
+    p.add_argument("--reaction", default="cut_in")
+    p.add_argument("--workers", type=int, default=2)
+    p.add_argument("--out", type=Path, default=Path("runs/bench_closedloop"))
+    args = p.parse_args()
+    seeds, duration = (list(range(20)), 60.0) if args.full else (list(range(6)), 30.0)
+    spec = prepare_spec(load_scenario(args.scenario), args.reaction).with_overrides({"duration": duration})
+    egos = list(EGOS)
+    try:
+        from simharness.predictors import load_predictor
+
+        load_predictor("traphic")
+    except (UserError, ImportError, OSError) as e:
+        print(f"note: TraPHic not available ({e}); scorecard without it", file=sys.stderr)
+        egos.remove("traphic")
+
+    # 1. Speed: one episode in this process (nothing else running).
+    name = "traphic" if "traphic" in egos else "const-vel"
+    t0 = time.perf_counter()
+    r = run_episode(EpisodeJob(spec.with_overrides({"duration": 60.0}), 0, name, LoopConfig(), keep_scene=False))
+    wall = time.perf_counter() - t0
+    s = r["scores"]
+    print(f"== closed-loop speed: {name} in the loop, {spec.name}, reaction {spec.ego.reaction}, seed 0")
+    print(f"recorded {s['sim_s']:.0f} s (+ {spec.warmup:.0f} s warm-up), wall {wall:.1f} s")
+    print(f"simulated s per wall s, loop only:          {s['realtime_factor']:.1f}x   (target >= 5x)")
+    print(f"simulated s per wall s, incl. warm-up:      {s['realtime_factor_with_warmup']:.1f}x")
+    per = {k: s[f"time_{k}_s"] / s["sim_s"] * 1000 for k in ("sim", "predict", "plan")}
+    print("wall ms per simulated s: " + ", ".join(f"{k} {v:.0f}" for k, v in per.items())
+          + f"; reset+warm-up {s['time_reset_s']:.1f} s")
+
+    # 2. Scorecard over seeds.
+    print(f"\n== scorecard: {len(seeds)} seeds x {duration:.0f} s, {spec.name}, reaction {spec.ego.reaction}")
+    scores = {}
+    t1 = time.perf_counter()
+    for ego in egos:
+        results = run_closed_loop(spec, ego, seeds, workers=args.workers, keep_forecasts=seeds[:1])
+        scores[ego] = write_run(args.out / ego, spec, ego, results, animate=1 if ego == egos[0] else 0)
+    print(scorecard_table(scores))
+    print(f"(scorecard wall time {time.perf_counter() - t1:.0f} s with {args.workers} workers)")
+    report = write_report(args.out, title=f"Closed-loop benchmark: {spec.name}, reaction {spec.ego.reaction}")
+    print(f"report: {report}")
+    if "traphic" in scores:
+        col = {k: scores[k]["collision_rate"]["mean"] for k in ("traphic", "none")}
+        prog = {k: scores[k]["progress_m"]["mean"] for k in ("traphic", "const-vel")}
+        print(f"check: TraPHic collision rate {col['traphic']:.2f} vs no prediction {col['none']:.2f} -> "
+              + ("lower" if col["traphic"] < col["none"] else "NOT lower"))
+        print(f"check: TraPHic progress {prog['traphic']:.1f} m vs const-vel {prog['const-vel']:.1f} m -> "
+              + ("at least as much" if prog["traphic"] >= prog["const-vel"] else "LESS"))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
