@@ -504,3 +504,29 @@ def closedloop_command(args: Any) -> int:
     print(f"wrote {out / 'scores.json' if len(names) == 1 else out / 'scorecard.json'}, "
           f"report {write_report(out)}")
     return 0
+
+
+def demo_closed_loop(out: Path, seeds: Sequence[int] = (0, 1), duration: float = 20.0, workers: int = 2,
+                     scenario: str = "sumo_arterial_dense", reaction: str = "cut_in", extra_md: str = "") -> Path:
+    """The demo's closed-loop step: TraPHic (when its weights ship), constant velocity, oracle and no
+    prediction on a few seeds; prints the scorecard, writes out/closedloop/<ego>/ and out/report.md
+    (with one animation). Returns the report's path."""
+    from simharness.report import write_report
+
+    spec = prepare_spec(load_scenario(scenario), reaction).with_overrides({"duration": float(duration)})
+    egos = ["traphic", "const-vel", "oracle", "none"]
+    try:
+        _predictor("traphic")
+    except (UserError, OSError) as e:
+        print(f"      (TraPHic left out of the closed loop: {e})", file=sys.stderr)
+        egos.remove("traphic")
+    scores = {}
+    for ego in egos:
+        results = run_closed_loop(spec, ego, list(seeds), workers=workers,
+                                  keep_forecasts=list(seeds)[:1] if ego == egos[0] else ())
+        scores[ego] = write_run(Path(out) / "closedloop" / _slug(ego), spec, ego, results,
+                                animate=1 if ego == egos[0] else 0)
+    print(f"{spec.name}, reaction {spec.ego.reaction}, seeds {list(seeds)} x {duration:g} s "
+          "(mean [95% bootstrap CI])")
+    print(scorecard_table(scores))
+    return write_report(out, title="simharness demo", extra_md=extra_md, closedloop_dir=Path(out) / "closedloop")

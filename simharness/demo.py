@@ -50,6 +50,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         # 3. one frame top-down
         figure = write_frame_figure(data, out / "frame.png")
         print(f"[3/3] figure: {figure}")
+
+        # 4. closed loop: an ego driven on TraPHic, constant-velocity and oracle forecasts, and with none
+        from simharness.closedloop import demo_closed_loop
+
+        print("[4/4] closed loop: egos on TraPHic, constant velocity, oracle and no prediction")
+        report = demo_closed_loop(out, workers=args.workers, extra_md=f"![one frame of the data set]({figure.name})")
+        print(f"      report: {report}")
     except UserError as e:
         print(f"demo: error: {e}", file=sys.stderr)
         return 2

@@ -145,41 +145,11 @@ class SamplingPlanner:
         c = exy.shape[0]
         t = (np.arange(frames) + 1) * dt
         disc = cfg.discount ** t  # (F,)
-        le, we = float(now.length[e]), float(now.width[e])
+        we = float(now.width[e])
 
         cost = np.zeros(c)
         if forecast is not None and len(forecast.agent_id):
-            rows = _rows_of(now.agent_id, forecast.agent_id)
-            keep = (rows >= 0) & (rows != e)
-            rows = rows[keep]
-            axy = forecast.mean[keep, :frames].astype(np.float64)  # (M, F, 2)
-            if rows.size:
-                ah = _path_heading(now.xy[rows, -1], now.heading[rows, -1], axy)  # (M, F)
-                widen = np.zeros(axy.shape[:2])
-                if forecast.sigma_rho is not None:
-                    sig = forecast.sigma_rho[keep, :frames, :2].max(-1)
-                    widen = np.minimum(cfg.sigma_scale * sig, cfg.sigma_cap)
-                rel = axy[None] - exy[:, None]  # (C, M, F, 2)
-                cf, sf = np.cos(eh)[:, None], np.sin(eh)[:, None]  # (C, 1, F)
-                along = rel[..., 0] * cf + rel[..., 1] * sf
-                lat = -rel[..., 0] * sf + rel[..., 1] * cf
-                dh = ah[None] - eh[:, None]  # (C, M, F)
-                la, wa = now.length[rows][None, :, None] / 2, now.width[rows][None, :, None] / 2
-                ext_along = np.abs(np.cos(dh)) * la + np.abs(np.sin(dh)) * wa
-                ext_lat = np.abs(np.sin(dh)) * la + np.abs(np.cos(dh)) * wa
-                gap_along = np.abs(along) - le / 2 - ext_along - widen[None] - cfg.margin_long
-                gap_lat = np.abs(lat) - we / 2 - ext_lat - widen[None] - cfg.margin_lat
-                # Agents now behind the ego (rear-enders) weigh less: their forecast ignores our braking.
-                rel0 = now.xy[rows, -1] - p0
-                behind = rel0 @ np.array([np.cos(h0), np.sin(h0)]) < -le / 2
-                w_agent = np.where(behind, cfg.behind_weight, 1.0)  # (M,)
-                conflict = (gap_along < 0) & (gap_lat < 0)  # (C, M, F)
-                cost += cfg.w_collision * np.einsum("cmf,m,f->c", conflict, w_agent, disc) / frames
-                # Headway: agents ahead inside the ego's lateral band, closer than the desired gap.
-                ahead = (along > 0) & (gap_lat < 0)
-                want = cfg.standstill_gap + cfg.headway_s * ev[:, None, :]
-                short = np.where(ahead, np.maximum(want - (gap_along + cfg.margin_long), 0.0), 0.0)
-                cost += cfg.w_headway * np.einsum("cmf,f->c", (short / np.maximum(want, 1.0)) ** 2, disc) / frames
+            cost += self._interaction_cost(now, forecast, p0, h0, exy, eh, ev, frames, disc)
         # Progress: track the speed limit.
         cost += cfg.w_speed * np.mean(((ev - lim.max_speed) / max(lim.max_speed, 1.0)) ** 2, 1)
         cost += cfg.w_accel * self._acc**2 + cfg.w_jerk * ((self._acc - self._prev_acc) / max(dt, 1e-3)) ** 2 / 25
@@ -193,6 +163,59 @@ class SamplingPlanner:
         self.last_cost, self.last_rollout = cost, exy[best]
         self._prev_acc, self._prev_lat = float(self._acc[best]), float(vlat[best])
         return EgoCommand(acceleration=float(self._acc[best]), lateral_velocity=float(vlat[best]))
+
+    def _interaction_cost(self, now: Scene, forecast: Forecast, p0: np.ndarray, h0: float, exy: np.ndarray,
+                          eh: np.ndarray, ev: np.ndarray, frames: int, disc: np.ndarray) -> np.ndarray:
+        """(C,) conflict + headway cost of every candidate against the forecast agents.
+
+        Boxes are compared in each candidate's own frame: the other box's extent projected on the ego's
+        axes (a conservative axis-aligned bound), both widened by margins and the forecast's sigma.
+        """
+        cfg, e = self.config, now.ego
+        le, we = float(now.length[e]), float(now.width[e])
+        rows = _rows_of(now.agent_id, forecast.agent_id)
+        keep = (rows >= 0) & (rows != e)
+        axy = forecast.mean[keep, :frames].astype(np.float32)  # (M, F, 2)
+        rows = rows[keep]
+        fwd = np.array([np.cos(h0), np.sin(h0)], np.float32)
+        # Prune agents that stay far ahead of or behind every candidate over the whole horizon.
+        along0 = (axy - p0.astype(np.float32)) @ fwd  # (M, F)
+        ex0 = (exy - p0) @ fwd  # (C, F)
+        reach = 15.0 + cfg.standstill_gap + cfg.headway_s * float(ev.max())
+        near = ((along0 > ex0.min(0) - reach) & (along0 < ex0.max(0) + reach)).any(1)
+        axy, rows = axy[near], rows[near]
+        if rows.size == 0:
+            return np.zeros(exy.shape[0])
+        sig_keep = np.flatnonzero(keep)[near]
+        ah = _path_heading(now.xy[rows, -1], now.heading[rows, -1], axy).astype(np.float32)  # (M, F)
+        widen = np.zeros(axy.shape[:2], np.float32)
+        if forecast.sigma_rho is not None:
+            widen = np.minimum(cfg.sigma_scale * forecast.sigma_rho[sig_keep, :frames, :2].max(-1), cfg.sigma_cap)
+        ce, se = np.cos(eh).astype(np.float32)[:, None], np.sin(eh).astype(np.float32)[:, None]  # (C, 1, F)
+        ca, sa = np.cos(ah)[None], np.sin(ah)[None]  # (1, M, F)
+        ex32 = exy.astype(np.float32)
+        rx = axy[None, ..., 0] - ex32[:, None, :, 0]  # (C, M, F)
+        ry = axy[None, ..., 1] - ex32[:, None, :, 1]
+        along = rx * ce + ry * se
+        lat = ry * ce - rx * se
+        cos_dh = np.abs(ca * ce + sa * se)  # |cos(ah - eh)| without trig on (C, M, F)
+        sin_dh = np.abs(sa * ce - ca * se)
+        la, wa = (now.length[rows] / 2)[None, :, None], (now.width[rows] / 2)[None, :, None]
+        gap_along = np.abs(along) - (le / 2 + cfg.margin_long) - cos_dh * la - sin_dh * wa - widen[None]
+        gap_lat = np.abs(lat) - (we / 2 + cfg.margin_lat) - sin_dh * la - cos_dh * wa - widen[None]
+        # Agents now behind the ego (rear-enders) weigh less: their forecast ignores our braking.
+        behind = (now.xy[rows, -1] - p0) @ fwd < -le / 2
+        w_agent = np.where(behind, cfg.behind_weight, 1.0).astype(np.float32)  # (M,)
+        in_band = gap_lat < 0
+        conflict = (gap_along < 0) & in_band  # (C, M, F)
+        cost = cfg.w_collision * np.einsum("cmf,m,f->c", conflict.astype(np.float32), w_agent,
+                                           disc.astype(np.float32)) / frames
+        # Headway: agents ahead inside the ego's lateral band, closer than the desired gap.
+        want = (cfg.standstill_gap + cfg.headway_s * ev[:, None, :]).astype(np.float32)
+        short = np.where((along > 0) & in_band, np.maximum(want - (gap_along + cfg.margin_long), 0.0), 0.0)
+        cost += cfg.w_headway * np.einsum("cmf,f->c", (short / np.maximum(want, 1.0)) ** 2,
+                                          disc.astype(np.float32)) / frames
+        return cost.astype(np.float64)
 
     def _on_road(self, exy: np.ndarray, eh: np.ndarray, width: float) -> np.ndarray:
         """(C,) whether both sides of the ego stay on the drivable area at every rollout frame."""

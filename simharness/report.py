@@ -241,17 +241,24 @@ def plot_online_error_by_type(scores: dict[str, dict], path: Path | str) -> Path
     return path
 
 
-def write_report(run_dir: Path | str, title: str = "Closed-loop report", extra_md: str = "") -> Path:
-    """`report.md` in run_dir from its scores.json files (run_dir/scores.json or run_dir/*/scores.json):
-    the scorecard table with 95% CIs, ego collisions by type, online error by type, figures, animations.
+def write_report(run_dir: Path | str, title: str = "Closed-loop report", extra_md: str = "",
+                 closedloop_dir: Path | str | None = None) -> Path:
+    """`report.md` in run_dir from the closed-loop scores.json files in closedloop_dir (default run_dir;
+    its scores.json, or */scores.json for several egos): the scorecard table with 95% CIs, ego collisions
+    by type, online error by type, figures and animations; `extra_md` goes first (other sections).
     """
     import json
+    import os
 
     from simharness.closedloop import SCORECARD_ROWS
 
     run_dir = Path(run_dir)
-    files = ([run_dir / "scores.json"] if (run_dir / "scores.json").is_file()
-             else sorted(run_dir.glob("*/scores.json")))
+    src = Path(closedloop_dir) if closedloop_dir is not None else run_dir
+    files = [src / "scores.json"] if (src / "scores.json").is_file() else sorted(src.glob("*/scores.json"))
+
+    def link(p: Path) -> str:
+        return Path(os.path.relpath(p, run_dir)).as_posix()
+
     scores = {}
     for f in files:
         s = json.loads(f.read_text())
@@ -278,15 +285,15 @@ def write_report(run_dir: Path | str, title: str = "Closed-loop report", extra_m
         for t in AgentType:
             lines.append(f"| {t.label} | " + " | ".join(str(scores[n]["collisions_by_type"][t.label]["total"])
                                                        for n in names) + " |")
-        fig = plot_scorecard(scores, run_dir / "scorecard.png")
-        lines += ["", f"![scorecard]({fig.name})", ""]
+        fig = plot_scorecard(scores, src / "scorecard.png")
+        lines += ["", f"![scorecard]({link(fig)})", ""]
         if any(scores[n].get("online_by_type") for n in names):
-            fig2 = plot_online_error_by_type(scores, run_dir / "online_error_by_type.png")
+            fig2 = plot_online_error_by_type(scores, src / "online_error_by_type.png")
             lines += ["Online prediction error by agent type (each forecast against what the agents did next):", "",
-                      f"![online error by type]({fig2.name})", ""]
-        gifs = sorted(run_dir.glob("*.gif")) + sorted(run_dir.glob("*/*.gif"))
+                      f"![online error by type]({link(fig2)})", ""]
+        gifs = sorted(src.glob("*.gif")) + sorted(src.glob("*/*.gif"))
         for g in gifs[:4]:
-            lines += [f"![episode]({g.relative_to(run_dir).as_posix()})", ""]
+            lines += [f"![episode]({link(g)})", ""]
     path = run_dir / "report.md"
     tmp = path.with_name(".tmp-report.md")
     tmp.write_text("\n".join(lines) + "\n", encoding="utf-8")

@@ -97,12 +97,12 @@ def sweep(spec: ScenarioSpec, sets: Sequence[tuple[str, Sequence[str]]], predict
     config = config or LoopConfig()
     if not predictors:
         raise UserError("--predictor: expected a name (traphic, const-vel, oracle, none) or a run folder")
+    grid = build_grid(spec, sets)
     for name in predictors:
         if name not in REFERENCE_EGOS:
             from simharness.predictors import load_predictor
 
             load_predictor(name)  # a bad name fails now, before any process starts
-    grid = build_grid(spec, sets)
     pool = make_executor(executor, workers, address)
     points = [{"settings": settings, "predictor": name, "spec": prepare_spec(spec.with_overrides(settings))}
               for settings in grid for name in predictors]
