@@ -3,7 +3,8 @@
 1. Simulated seconds per wall second of one closed-loop episode with TraPHic driving the ego on the
    dense SUMO arterial (loop only, and including the unrecorded warm-up), with the time split between
    simulator, predictor and planner. Target: >= 5x real time.
-2. The scorecard of the four egos (traphic, const-vel, oracle, none) over seeds of the stress setting
+2. The scorecard of the four egos (traphic, const-vel, oracle, none), plus "static" (the same planner
+   with no prediction: everyone assumed to stay put), over seeds of the stress setting
    (background reaction "cut_in"), mean [95% bootstrap CI], written with figures to --out.
 
     .venv/bin/python bench/closedloop.py            # --quick: 6 seeds of 30 s, a few minutes on 2 cores
@@ -33,7 +34,7 @@ from simharness.errors import UserError  # noqa: E402
 from simharness.report import write_report  # noqa: E402
 from simharness.scenario import load_scenario  # noqa: E402
 
-EGOS = ("traphic", "const-vel", "oracle", "none")
+EGOS = ("traphic", "const-vel", "oracle", "static", "none")
 
 
 def main() -> int:

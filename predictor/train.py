@@ -27,6 +27,7 @@ from simharness.errors import UserError
 from simharness.scene import Scene
 
 CACHE_DIR = ".windows"  # inside the data set folder: the cached sample index per window config
+VAL_SAMPLES = 4000  # validation windows scored each epoch by the CLI (a fixed, seeded subset)
 
 
 def open_data(data: Path) -> tuple[str, list[str], Any]:
@@ -90,7 +91,8 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
     if epochs < 1 or batch_size < 1 or not lr > 0 or warmup_epochs < 0:
         raise UserError(f"bad training settings: epochs {epochs}, batch size {batch_size}, lr {lr}, "
                         f"warm-up {warmup_epochs}; expected positive numbers")
-    torch.set_num_threads(threads or min(2, os.cpu_count() or 1))
+    # OMP_NUM_THREADS wins: on a shared, loaded machine one thread is far faster than two that spin-wait.
+    torch.set_num_threads(threads or int(os.environ.get("OMP_NUM_THREADS", 0)) or min(2, os.cpu_count() or 1))
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
     window = window or WindowConfig()
@@ -100,8 +102,8 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
     train_idx, val_idx = store.samples_of(split["train"]), store.samples_of(split["val"])
     if max_samples is not None and len(train_idx) > max_samples:
         train_idx = np.sort(rng.choice(train_idx, max_samples, replace=False))
-    if max_val_samples is not None and len(val_idx) > max_val_samples:  # a fixed subset, scored every epoch
-        val_idx = np.sort(rng.choice(val_idx, max_val_samples, replace=False))
+    if max_val_samples is not None and len(val_idx) > max_val_samples:  # a fixed subset: comparable epochs
+        val_idx = np.sort(np.random.default_rng(seed + 1).choice(val_idx, max_val_samples, replace=False))
     if len(train_idx) == 0 or len(val_idx) == 0:
         raise UserError(f"{data}: no complete {window.history_s:g} s + {window.future_s:g} s windows in the "
                         f"{'train' if len(train_idx) == 0 else 'val'} scenes; record longer scenes")
@@ -127,7 +129,8 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
     log = io.StringIO()
     writer = csv.writer(log)
     writer.writerow(["epoch", "loss", "train_loss", "val_mse", "val_nll", "val_rmse_m", "seconds", "samples_per_s"])
-    best, best_epoch, history = math.inf, -1, []
+    best, best_epoch = math.inf, -1
+    history = [{"epoch": 0, "loss": "init", "train": math.nan, **_epoch_eval(net, store, val_idx, batch_size)}]
     samples_seen, train_time = 0, 0.0
     for epoch in range(epochs):
         kind = loss_for_epoch(epoch, warmup_epochs)
@@ -146,7 +149,7 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
                 opt.zero_grad()
                 loss.backward()
                 opt.step()
-            tot += float(loss)
+            tot += loss.item()
             nb += 1
             if nb % 20 == 0:
                 bar.set_postfix(loss=f"{tot / nb:.3f}")
@@ -175,7 +178,8 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
 def train_command(args: argparse.Namespace) -> int:
     """`simharness train --data DIR --model NAME --out RUN [...]`."""
     res = train(args.data, model=args.model, out=args.out, epochs=args.epochs, warmup_epochs=args.warmup_epochs,
-                batch_size=args.batch_size, lr=args.lr, seed=args.seed, max_samples=args.max_samples)
+                batch_size=args.batch_size, lr=args.lr, seed=args.seed, max_samples=args.max_samples,
+                max_val_samples=VAL_SAMPLES)
     kind = "nll" if res["best_epoch"] > args.warmup_epochs else "mse"
     print(f"{args.model}: best epoch {res['best_epoch']} (val {kind} {res['best_val']:.3f}), "
           f"{res['train_samples']} training windows, {res['samples_per_s']:.0f} samples/s -> {args.out}")

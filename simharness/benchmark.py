@@ -22,10 +22,15 @@ import math
 import os
 import sys
 import time
+import traceback
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from simharness.errors import UserError
+
+if TYPE_CHECKING:
+    from simharness.executors import JobResult
 
 BASELINES: tuple[str, ...] = ("rnn-ed", "social-lstm", "social-gan", "cs-lstm")
 VARIANTS: tuple[str, ...] = ("traphic-b", "traphic-he", "traphic-ho", "traphic")
@@ -118,6 +123,17 @@ def run_method(job: MethodJob) -> dict[str, Any]:
     return row
 
 
+def _run_inline(jobs: list[MethodJob]) -> Iterator[JobResult]:
+    """`run_method` over jobs in this process, each failure reported as its executor would report it."""
+    from simharness.executors import JobResult
+
+    for job in jobs:
+        try:
+            yield JobResult(job, value=run_method(job))
+        except Exception as e:  # a method that fails is reported; the others still run
+            yield JobResult(job, error=f"{type(e).__name__}: {e}".splitlines()[0], traceback=traceback.format_exc())
+
+
 # ---------------------------------------------------------------------------- the run
 def benchmark(data: Path, profile: str | Profile = "quick", out: Path = Path("runs/benchmark"), workers: int = 2,
               executor: str = "local", address: str | None = None, methods: tuple[str, ...] | None = None,
@@ -125,6 +141,7 @@ def benchmark(data: Path, profile: str | Profile = "quick", out: Path = Path("ru
     """Train and score every method on `data` with one budget; write results.{md,json} and figures to `out`.
 
     methods: a subset of METHODS (default all); the constant-velocity reference is always scored.
+    workers: 1 runs every method here in turn; more run one fresh process per method, that many at once.
     Returns the results dict (also results.json). Methods that fail are listed under "failed".
     """
     from tqdm import tqdm
@@ -152,11 +169,13 @@ def benchmark(data: Path, profile: str | Profile = "quick", out: Path = Path("ru
     jobs = [MethodJob(m, str(data), str(out / "runs" / m), prof) for m in (*chosen, REFERENCE)]
     rows: dict[str, dict[str, Any]] = {}
     failed: dict[str, str] = {}
-    pool = make_executor(executor, workers, address, max_retries=0)
+    # One worker: run in this process (imports once, no spawn); more: one fresh process per method.
+    results_iter = (_run_inline(jobs) if workers == 1 and executor == "local" and not address
+                    else make_executor(executor, workers, address, max_retries=0).map_unordered(run_method, jobs))
     bar = tqdm(total=len(jobs), desc=f"benchmark {prof.name}", unit="method", file=sys.stderr,
                disable=not progress, dynamic_ncols=True)
     try:
-        for r in pool.map_unordered(run_method, jobs):
+        for r in results_iter:
             name = r.job.method
             if r.ok:
                 rows[name] = r.value

@@ -11,12 +11,24 @@ reset the scenario with its ego enabled, then every recorded frame
 Every frame is recorded; the episode is scored from the recorded Scene only (oriented-box overlaps,
 never the simulator's own flags) and each forecast is scored against what the agents really did.
 
-The oracle (`predictor="oracle"`): a forecast of the others from a reference rollout of the same
-seed in which the simulator's own model drives the ego (the "none" ego). It is exact when the
-background ignores the ego (`reaction = "ignore"`, the background then never depends on the ego)
-and a privileged approximation otherwise (the background reacted to the reference ego, not to the
-oracle's); agents missing from the reference are extrapolated at constant velocity. Its online
-error is reported like any predictor's, so how exact it was is visible in every scorecard.
+Egos by `predictor` name: a registered predictor or run folder (traphic, const-vel, ...) drives the
+sampling planner; "oracle" feeds it the true future (below); "static" feeds it no prediction (everyone
+stays put: the planner's floor); "none" lets the simulator's own background model drive the ego (no
+prediction at all); "blind" holds speed and line whatever happens (a test reference).
+
+The oracle (`predictor="oracle"`) gets the others' true future, by one of two means:
+- backends that can be cloned (highway: the whole simulator deep-copies, RNG included) get a
+  look-ahead: at each prediction step a copy of the live simulator is stepped `horizon` frames with
+  the ego on the simulator's own model, and the others' positions in it are the forecast. Exact
+  whenever the background does not react to the ego (`reaction = "ignore"`); otherwise exact up to
+  how the others react to the ego's actual, rather than the model's, driving over those seconds.
+- others (SUMO: libsumo cannot be copied in-process) get a replay: a reference rollout of the same
+  seed with the ego on the simulator's own model is recorded first; an agent's forecast is its
+  reference future, shifted to start where the agent really is, if the reference had it within 1 m
+  of its real position now, and constant velocity otherwise. Exact with `reaction = "ignore"` (the
+  background then never depends on the ego); with a reacting background the traffic of the two
+  runs drifts apart, and the oracle falls back to constant velocity for the agents that drifted.
+Its online error is reported like any predictor's, so how exact it was is visible in every scorecard.
 """
 
 from __future__ import annotations
@@ -39,7 +51,7 @@ from simharness.scenario import ScenarioSpec, load_scenario
 from simharness.scene import AgentType, Forecast, Predictor, Scene
 from simharness.sim.base import Frame, RoadGeometry, scene_from_frames
 
-REFERENCE_EGOS = ("oracle", "none", "blind")  # not predictors: handled here, not by load_predictor
+REFERENCE_EGOS = ("oracle", "static", "none", "blind")  # not predictors: handled here, not by load_predictor
 SCALARS = ("collided", "collisions", "at_fault_collided", "at_fault_collisions", "near_miss",
            "near_misses_per_min", "min_gap_m", "background_collisions", "background_collisions_per_1000_agent_min",
            "progress_m", "mean_speed", "time_stuck_s", "accel_rms", "jerk_rms", "lat_accel_max", "online_ade",
@@ -65,7 +77,7 @@ class EpisodeJob:
 
     spec: ScenarioSpec
     seed: int
-    predictor: str  # traphic | const-vel | a run folder | oracle | none | blind
+    predictor: str  # traphic | const-vel | a run folder | oracle | static | none | blind
     config: LoopConfig = LoopConfig()
     keep_forecasts: bool = False  # return every forecast (for animations)
     keep_scene: bool = True
@@ -80,35 +92,78 @@ class _Issued:
 
 
 # ---------------------------------------------------------------------- the oracle
+CLONABLE_BACKENDS = ("highway",)  # simulators that copy.deepcopy exactly (state and RNG)
+
+
+def _constant_velocity(history: Scene, targets: np.ndarray, horizon: int) -> np.ndarray:
+    """(M, horizon, 2) constant-velocity extrapolation of history rows `targets` from their last step."""
+    vel = history.velocity[targets, -1]
+    steps = (np.arange(horizon) + 1)[None, :, None] * history.dt
+    return (history.xy[targets, -1][:, None] + vel[:, None] * steps).astype(np.float32)
+
+
+class StaticForecast:
+    """"static": the sampling planner with no prediction at all: everyone stays where they are now."""
+
+    def predict(self, history: Scene, targets: np.ndarray, horizon: int) -> Forecast:
+        targets = np.asarray(targets, int)
+        mean = np.repeat(history.xy[targets, -1][:, None], horizon, axis=1)
+        return Forecast(agent_id=history.agent_id[targets], mean=mean.astype(np.float32), dt=history.dt)
+
+
 class ReplayOracle:
     """True futures from a reference recording of the same seed (see the module docstring).
 
     reference: the recorded Scene; `history.frame0 + history.num_frames - 1` is "now" in its frames.
+    tolerance: m; agents the reference placed farther than this from where they are now fall back
+    to constant velocity.
     """
 
-    def __init__(self, reference: Scene) -> None:
+    def __init__(self, reference: Scene, tolerance: float = 1.0) -> None:
         self.reference = reference
+        self.tolerance = tolerance
         self._row = {a: i for i, a in enumerate(reference.agent_id.tolist())}
 
     def predict(self, history: Scene, targets: np.ndarray, horizon: int) -> Forecast:
-        """Forecast (M, horizon, 2) of history rows `targets`; constant velocity where the reference lacks them."""
+        """Forecast (M, horizon, 2) of history rows `targets`."""
         targets = np.asarray(targets, int)
         now = history.frame0 + history.num_frames - 1
         ref = self.reference
-        cols = now + 1 + np.arange(horizon)  # (F,)
-        inside = cols < ref.num_frames
         rows = np.array([self._row.get(a, -1) for a in history.agent_id[targets].tolist()], int)  # M lookups
-        found = rows >= 0
-        mean = np.zeros((targets.size, horizon, 2), np.float32)
-        ok = np.zeros((targets.size, horizon), bool)
-        rr, cc = np.nonzero(found[:, None] & inside[None, :])
-        mean[rr, cc] = ref.xy[rows[rr], cols[cc]]
-        ok[rr, cc] = ref.valid[rows[rr], cols[cc]]
-        # Constant velocity from the last two history frames where the reference has nothing.
-        vel = history.velocity[targets, -1]
-        cv = history.xy[targets, -1][:, None] + vel[:, None] * (np.arange(horizon) + 1)[None, :, None] * history.dt
-        mean = np.where(ok[..., None], mean, cv).astype(np.float32)
-        return Forecast(agent_id=history.agent_id[targets], mean=mean, dt=history.dt)
+        cols = np.minimum(now + np.arange(horizon + 1), ref.num_frames - 1)  # now, then the future
+        inside = (now + np.arange(horizon + 1)) < ref.num_frames
+        r = np.maximum(rows, 0)
+        path = ref.xy[r][:, cols]  # (M, horizon + 1, 2)
+        ok = (rows >= 0)[:, None] & inside[None] & ref.valid[r][:, cols]
+        offset = history.xy[targets, -1] - path[:, 0]
+        agree = ok[:, 0] & (np.linalg.norm(offset, axis=-1) <= self.tolerance)
+        mean = np.where((ok[:, 1:] & agree[:, None])[..., None], path[:, 1:] + offset[:, None],
+                        _constant_velocity(history, targets, horizon))
+        return Forecast(agent_id=history.agent_id[targets], mean=mean.astype(np.float32), dt=history.dt)
+
+
+class LookaheadOracle:
+    """True futures from a copy of the live simulator stepped ahead (see the module docstring)."""
+
+    def __init__(self) -> None:
+        self.sim = None  # set by `simulate` once the simulator exists
+
+    def predict(self, history: Scene, targets: np.ndarray, horizon: int) -> Forecast:
+        """Forecast (M, horizon, 2) of history rows `targets`; constant velocity for agents that leave."""
+        import copy
+
+        targets = np.asarray(targets, int)
+        clone = copy.deepcopy(self.sim)
+        ids = history.agent_id[targets]
+        mean = _constant_velocity(history, targets, horizon)
+        for f in range(horizon):  # frames of the copy; agents matched by id inside, vectorised
+            frame = clone.step(None)
+            order = np.argsort(frame.agent_id)
+            pos = np.clip(np.searchsorted(frame.agent_id, ids, sorter=order), 0, max(frame.num_agents - 1, 0))
+            hit = order[pos] if frame.num_agents else pos
+            found = (frame.agent_id[hit] == ids) if frame.num_agents else np.zeros(ids.size, bool)
+            mean[found, f] = frame.xy[hit[found]]
+        return Forecast(agent_id=ids, mean=mean, dt=history.dt)
 
 
 # ---------------------------------------------------------------------- one episode
@@ -157,6 +212,8 @@ def simulate(spec: ScenarioSpec, seed: int, predictor: Predictor | None, planner
         road = sim.road
         if hasattr(planner, "set_road"):  # the drivable area is only known once the simulator is built
             planner.set_road(road)
+        if isinstance(predictor, LookaheadOracle):
+            predictor.sim = sim
         timing["reset"] += time.perf_counter() - t0
         ego_frames, latest, latest_at = 0, None, -1
         for k in range(spec.num_frames - 1):
@@ -174,7 +231,7 @@ def simulate(spec: ScenarioSpec, seed: int, predictor: Predictor | None, planner
                         issued.frames.append(k)
                         issued.forecasts.append(latest)
                 t2 = time.perf_counter()
-                now = scene_from_frames([frame], dt)
+                now = _scene_of(frame, dt)
                 command = planner.plan(now, _shift(latest, k - latest_at) if latest is not None else None)
                 timing["predict"] += t2 - t1
                 timing["plan"] += time.perf_counter() - t2
@@ -195,6 +252,14 @@ def _history(frames: Sequence[Frame], dt: float, frame0: int, radius: float) -> 
     near = scene.valid[:, -1] & (np.linalg.norm(scene.xy[:, -1] - ego_xy, axis=-1) <= radius)
     near[scene.ego] = True
     return scene.select_agents(near)
+
+
+def _scene_of(frame: Frame, dt: float) -> Scene:
+    """One frame as a one-column Scene (the planner's "now"), built directly: no id matching needed."""
+    return Scene(xy=frame.xy[:, None], heading=frame.heading[:, None], speed=frame.speed[:, None],
+                 valid=np.ones((frame.num_agents, 1), bool), agent_id=frame.agent_id, agent_type=frame.agent_type,
+                 length=frame.length, width=frame.width, dt=dt, ego=frame.ego,
+                 extra={k: v[:, None] for k, v in frame.extra.items()})
 
 
 def _shift(forecast: Forecast, k: int) -> Forecast:
@@ -220,7 +285,11 @@ def run_episode(job: EpisodeJob) -> dict[str, Any]:
     wall0 = time.perf_counter()
     predictor: Predictor | None = None
     reference_s = 0.0
-    if job.predictor == "oracle":
+    if job.predictor == "static":
+        predictor = StaticForecast()
+    elif job.predictor == "oracle" and spec.backend in CLONABLE_BACKENDS:
+        predictor = LookaheadOracle()
+    elif job.predictor == "oracle":
         ref_scene, _, _, _ = simulate(spec, job.seed, None, BackgroundPlanner(), cfg)
         predictor = ReplayOracle(ref_scene)
         reference_s = time.perf_counter() - wall0

@@ -21,6 +21,7 @@ import logging
 import multiprocessing as mp
 import os
 import re
+import socket
 import sys
 import time
 import traceback
@@ -156,7 +157,8 @@ class RayExecutor:
 
     With no `address` (and no Ray already initialised in this process) it starts a local Ray instance
     with `num_cpus=workers` and no dashboard, and shuts it down after each `map_unordered`. With an
-    `address` ("auto", "ray://host:10001", "host:6379") it joins that cluster and leaves it running;
+    `address` ("auto": RAY_ADDRESS or the cluster `ray start` made here; "ray://host:10001";
+    "host:6379") it joins that cluster and leaves it running;
     every node must have simharness installed and see the same paths (data set folder, run folders).
     Retries are counted here, not by Ray (its `max_retries=0`), so attempts are reported as locally.
     """
@@ -219,17 +221,33 @@ class RayExecutor:
             self.startup_s = None
             return False
         if self.address:
+            _probe(self.address)
             os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
             t0 = time.perf_counter()
             try:
                 ray.init(address=self.address, logging_level=logging.ERROR, log_to_driver=False)
             except (ConnectionError, ValueError, RuntimeError) as e:
-                raise UserError(f"--address {self.address}: cannot join a Ray cluster there: {_one_line(e)}"
-                                ) from None
+                why = _one_line(e.__cause__ or e)  # Ray's ConnectionError hides the reason (e.g. authentication)
+                raise UserError(f"--address {self.address}: cannot join a Ray cluster there: {why}") from None
             self.startup_s = time.perf_counter() - t0
             return True  # our connection only: shutdown() disconnects, the cluster keeps running
         self.startup_s = start_local_ray(self.workers, self.object_store_memory)
         return True
+
+
+def _probe(address: str, timeout: float = 5.0) -> None:
+    """Fail in seconds, with one line, where nothing listens at a host:port address (ray.init waits minutes)."""
+    if address in ("auto", "local"):
+        return
+    hostport = address.split("://", 1)[-1]
+    host, _, port = hostport.rpartition(":")
+    if not host or not port.isdigit():
+        raise UserError(f"--address {address}: expected HOST:PORT, ray://HOST:PORT or auto")
+    try:
+        socket.create_connection((host, int(port)), timeout=timeout).close()
+    except OSError as e:
+        raise UserError(f"--address {address}: no Ray cluster answers there ({e.strerror or e}); start one with "
+                        "`ray start --head` or check the address") from None
 
 
 def start_local_ray(cpus: int, object_store_memory: int | None = None) -> float:
@@ -243,7 +261,8 @@ def start_local_ray(cpus: int, object_store_memory: int | None = None) -> float:
     os.environ["PYTHONPATH"] = os.pathsep.join(p for p in sys.path if p)  # inherited by the raylet's workers
     t0 = time.perf_counter()
     try:
-        ray.init(num_cpus=cpus, include_dashboard=False, object_store_memory=object_store_memory,
+        # address="local": always a new instance, never a `ray start` cluster or RAY_ADDRESS found by chance.
+        ray.init(address="local", num_cpus=cpus, include_dashboard=False, object_store_memory=object_store_memory,
                  logging_level=logging.ERROR, log_to_driver=False)
     finally:
         if saved is None:
@@ -262,5 +281,7 @@ def make_executor(name: str = "local", workers: int = 2, address: str | None = N
         return LocalExecutor(workers, max_retries=max_retries)
     if name == "ray":
         import_ray()  # fail now, before any work, when the extra is missing
+        if address:
+            _probe(address)  # and when nothing listens at the address
         return RayExecutor(workers, address, max_retries=max_retries)
     raise UserError(f"--executor: unknown executor {name!r}; expected local or ray")

@@ -263,6 +263,8 @@ def write_report(run_dir: Path | str, title: str = "Closed-loop report", extra_m
     for f in files:
         s = json.loads(f.read_text())
         scores[s.get("predictor", f.parent.name)] = s
+    order = ("traphic", "const-vel", "oracle", "static", "none")  # predictors first, then the bracketing references
+    scores = dict(sorted(scores.items(), key=lambda kv: (order.index(kv[0]) if kv[0] in order else -1, kv[0])))
     lines = [f"# {title}", ""]
     if extra_md:
         lines += [extra_md, ""]

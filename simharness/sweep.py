@@ -76,8 +76,13 @@ def build_grid(spec: ScenarioSpec, sets: Sequence[tuple[str, Sequence[str]]]) ->
             raise UserError(f"--set {key}: given twice; list all its values in one --set {key}=V1,V2,...")
     axes = [[parse_value(v) for v in values] for _, values in sets]
     grid = [dict(zip(keys, combo, strict=True)) for combo in itertools.product(*axes)]
+    top = {f.name for f in dataclasses.fields(ScenarioSpec)}
     for settings in grid:
-        spec.with_overrides(settings)  # raises UserError naming the file and key on a bad key or value
+        try:
+            spec.with_overrides(settings)  # raises UserError naming the file and key on a bad key or value
+        except UserError as e:
+            near = [k.replace(".", "_") for k in settings if "." in k and k.replace(".", "_") in top]
+            raise UserError(f"{e} (did you mean --set {near[0]}=...?)" if near else str(e)) from None
     return grid
 
 

@@ -143,3 +143,11 @@ def test_loop_config_predict_rate_is_respected():
     slow = run_episode(EpisodeJob(spec, 0, "const-vel", LoopConfig(predict_hz=1.0), keep_forecasts=True))
     n_fast, n_slow = len(fast["forecasts"][0]), len(slow["forecasts"][0])
     assert n_fast > 4 * n_slow - 5 and n_slow > 0
+
+
+def test_lookahead_oracle_is_exact_on_highway_when_ignored():
+    # highway-env deep-copies: the oracle steps a copy of the live simulator ahead.
+    spec = prepare_spec(load_scenario("highway_mixed_dense"), "ignore").with_overrides(
+        {**SHORT_HIGHWAY, "duration": 8.0})
+    s = run_episode(EpisodeJob(spec, 1, "oracle", keep_scene=False))["scores"]
+    assert s["online_samples"] > 0 and s["online_ade"] == pytest.approx(0.0, abs=1e-4)

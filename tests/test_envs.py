@@ -36,7 +36,7 @@ def test_highway_env_reward_terms_and_truncation():
     env = gym.make("simharness/HighwayDense-v0", config={**HW, "reward": {"progress": 1.0, "accel": 0.0,
                                                                              "jerk": 0.0, "lateral": 0.0}})
     env.reset(seed=2)
-    total, progress, steps = 0.0, 0.0, 0
+    total, steps = 0.0, 0
     while True:
         _, r, term, trunc, info = env.step(np.zeros(2, np.float32))
         total += r

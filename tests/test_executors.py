@@ -117,6 +117,10 @@ def test_make_executor_ray_and_its_errors(monkeypatch) -> None:
         make_executor("local", 2, address="auto")
     with pytest.raises(UserError, match="positive"):
         make_executor("ray", 0)
+    with pytest.raises(UserError, match="no Ray cluster answers there"):  # in seconds, not ray.init's minutes
+        make_executor("ray", 2, address="127.0.0.1:1")
+    with pytest.raises(UserError, match="expected HOST:PORT"):
+        make_executor("ray", 2, address="nowhere")
     monkeypatch.setitem(sys.modules, "ray", None)  # what `import ray` meets where the extra is not installed
     with pytest.raises(UserError, match=r"pip install 'simharness\[ray\]'"):
         make_executor("ray", 2)

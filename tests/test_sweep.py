@@ -20,7 +20,6 @@ from simharness.scenario import load_scenario
 from simharness.sweep import METRICS, build_grid, parse_value, sweep
 
 
-
 def _is_timing(key: str) -> bool:
     """Wall-clock figures of an episode (they differ run to run); time_stuck_s is a score, not a timing."""
     return key in ("wall_s", "reference_s") or key.startswith("realtime_factor") or (
@@ -49,6 +48,7 @@ def test_several_sets_multiply_first_axis_slowest(spec) -> None:
     ([("demand_scale", ["50"])], r"key 'demand_scale': expected a number in \[0.0, 20.0\], got 50"),
     ([("road.wdith", ["8"])], r"key 'road.wdith': unknown key"),
     ([("ego.reaction", ["polite"])], r"key 'ego.reaction': expected one of"),
+    ([("demand.scale", ["1"])], r"key 'demand.scale': unknown agent type.*did you mean --set demand_scale="),
 ])
 def test_bad_grid_is_one_clear_line(spec, sets, message) -> None:
     with pytest.raises(UserError, match=message) as e:
@@ -58,7 +58,8 @@ def test_bad_grid_is_one_clear_line(spec, sets, message) -> None:
 
 def test_cli_bad_set_exits_2_before_any_episode(tmp_path: Path) -> None:
     run = subprocess.run([sys.executable, "-m", "simharness", "sweep", "sumo_arterial_dense", "--set",
-                          "demand_scale=0.5,99", "--predictor", "const-vel", "--out", str(tmp_path / "sw")], capture_output=True, text=True)
+                          "demand_scale=0.5,99", "--predictor", "const-vel", "--out", str(tmp_path / "sw")],
+                         capture_output=True, text=True)
     assert run.returncode == 2 and "demand_scale" in run.stderr and "Traceback" not in run.stderr
     assert not (tmp_path / "sw").exists()
 

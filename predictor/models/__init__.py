@@ -15,7 +15,8 @@ from simharness.errors import UserError
 
 # name -> ("module:Class", "module:ConfigClass", fixed config overrides)
 MODELS: dict[str, tuple[str, str, dict[str, Any]]] = {
-    "traphic": ("predictor.models.traphic:TraPHic", "predictor.models.traphic:TraPHicConfig", {}),
+    "traphic": ("predictor.models.traphic:TraPHic", "predictor.models.traphic:TraPHicConfig",
+                {"horizon": True, "heterogeneous": True}),
     "traphic-he": ("predictor.models.traphic:TraPHic", "predictor.models.traphic:TraPHicConfig",
                    {"horizon": False, "heterogeneous": True}),
     "traphic-ho": ("predictor.models.traphic:TraPHic", "predictor.models.traphic:TraPHicConfig",

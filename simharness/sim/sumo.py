@@ -28,10 +28,11 @@ from simharness.errors import SimulatorError
 from simharness.scenario import ScenarioSpec
 from simharness.scene import DEFAULT_FOOTPRINT, AgentType
 from simharness.sim.base import EgoCommand, Event, Frame, RoadGeometry
-from simharness.sim.sumo_demand import KINEMATICS, agent_type_of, routes_xml
+from simharness.sim.sumo_demand import KINEMATICS, routes_xml
 from simharness.sim.sumo_ego import GhostEgo, ego_start, free_lateral
 from simharness.sim.sumo_net import Network, build_network
 from simharness.sim.sumo_pedestrians import Crossings
+from simharness.sim.sumo_traffic import Traffic, VehicleTable, read_traffic
 
 os.environ.setdefault("LIBSUMO_AS_TRACI", "quiet")  # libsumo prints a pyarrow ABI note to stdout otherwise
 import libsumo  # noqa: E402
@@ -59,7 +60,6 @@ class SumoSimulator:
         self.road: RoadGeometry = self.net.road
         self._running = False
         self.seed: int | None = None
-        self._lane_info: dict[str, tuple[float, float]] = {}  # lane id -> (offset from carriageway centre, angle)
 
     # ------------------------------------------------------------------ lifecycle
     def reset(self, seed: int) -> Frame:
@@ -99,7 +99,9 @@ class SumoSimulator:
                                  f"{self._sumo_said(e)}") from None
         _LIVE.append(self)
         self._running = True
-        self._types: dict[str, tuple[int, float, float]] = {}  # vehicle id -> (AgentType, length, width)
+        self._table = VehicleTable(Crossings.public_id)
+        self._steps = 0  # SUMO steps since start
+        self._traffic: Traffic | None = None  # the latest read of every vehicle
         self._contacts: set[tuple[str, str]] = set()
         self._events: list[Event] = []
         self._t = 0.0
@@ -107,7 +109,7 @@ class SumoSimulator:
         self._ego_in_sumo = False
         self._ego_lat_v = 0.0
         self._cut_in: set[str] = set()
-        self._lane_info = self._read_lanes()
+        self._lane_index, self._lane_table = self._read_lanes()
         rng = np.random.default_rng([sumo_seed, 7])
         self._crossings = Crossings(self.spec, self.net, rng)
         self._ghost: GhostEgo | None = None
@@ -171,21 +173,34 @@ class SumoSimulator:
         return text or type(e).__name__
 
     def _advance(self, steps: int, recording: bool, command: EgoCommand | None = None) -> None:
-        """SUMO steps with per-step bookkeeping (ego, crossing pedestrians, collisions, teleports)."""
-        sl = self.spec.step_length
+        """SUMO steps with per-step bookkeeping (ego, crossing pedestrians, collisions, teleports).
+
+        Recorded and unrecorded stepping do the same simulation work: at the start of every frame the
+        crossing pedestrians (and a cut-in ego's neighbours) decide on one read of every vehicle, which
+        the recorded path takes from the frame it has just recorded and the unrecorded path reads.
+        """
+        sl, per_frame = self.spec.step_length, self.spec.steps_per_frame
         for k in range(steps):
-            if recording or self._ego_due:
-                self._control_ego(command, sl)
-            self._crossings.step(libsumo, sl, look=k == 0)
+            frame_start = k % per_frame == 0
+            if self.spec.ego.enabled and (recording or self._ego_due):
+                self._control_ego(command, sl, frame_start)
+            self._crossings.step(libsumo, sl, frame_start, self._traffic_now)
             try:
                 libsumo.simulationStep()
             except Exception as e:
                 self.close()
                 raise SimulatorError(f"scenario {self.spec.name}, seed {self.seed}: SUMO died at "
                                      f"t={libsumo_time_safe():.1f} s: {self._sumo_said(e)}") from None
+            self._steps += 1
             self._collect_events(self._t + (k + 1) * sl)
         if not recording:
             self._crossings.mark()
+
+    def _traffic_now(self) -> Traffic:
+        """Every vehicle at the current step: the frame's own read when it is current, else a fresh read."""
+        if self._traffic is None or self._traffic.step != self._steps:
+            self._traffic = read_traffic(libsumo, self._table, self._steps)
+        return self._traffic
 
     def _collect_events(self, t: float) -> None:
         """Collisions (first step of each contact only) and teleports of the last SUMO step."""
@@ -194,15 +209,15 @@ class SumoSimulator:
             pair = (c.collider, c.victim)
             now.add(pair)
             if pair not in self._contacts:
-                self._events.append(Event("collision", round(t, 6), self._crossings.public_id(c.collider),
-                                          self._crossings.public_id(c.victim),
+                self._events.append(Event("collision", round(t, 6), Crossings.public_id(c.collider),
+                                          Crossings.public_id(c.victim),
                                           f"{c.type} {c.colliderType}/{c.victimType} lane {c.lane}"))
         self._contacts = now
         for vid in libsumo.simulation.getStartingTeleportIDList():
-            self._events.append(Event("teleport", round(t, 6), self._crossings.public_id(vid)))
+            self._events.append(Event("teleport", round(t, 6), Crossings.public_id(vid)))
 
     # ------------------------------------------------------------------ ego
-    def _control_ego(self, command: EgoCommand | None, sl: float) -> None:
+    def _control_ego(self, command: EgoCommand | None, sl: float, frame_start: bool) -> None:
         spec = self.spec.ego
         now = libsumo.simulation.getTime()
         if self._ego_due and now >= self.spec.warmup + spec.insert_at - 1e-9:
@@ -210,7 +225,7 @@ class SumoSimulator:
             self._insert_ego()
         if self._ghost is not None:
             return  # the ghost moves once per frame in _frame()
-        if not self._ego_in_sumo or EGO_ID not in self._present_ids():
+        if not self._ego_in_sumo or EGO_ID not in libsumo.vehicle.getIDList():
             return
         if command is None:
             if self._ego_controlled:  # hand the ego back to SUMO's own models
@@ -235,7 +250,7 @@ class SumoSimulator:
                 half = libsumo.lane.getWidth(lane) / 2 - libsumo.vehicle.getWidth(EGO_ID) / 2
                 lat = float(np.clip(libsumo.vehicle.getLateralLanePosition(EGO_ID) + lat_v * sl, -half, half))
                 libsumo.vehicle.setLateralLanePosition(EGO_ID, lat)
-        if self.spec.ego.reaction == "cut_in":
+        if self.spec.ego.reaction == "cut_in" and frame_start:
             self._update_cut_in()
 
     def _insert_ego(self) -> None:
@@ -264,28 +279,23 @@ class SumoSimulator:
 
     def _update_cut_in(self) -> None:
         """Background vehicles within 50 m of the ego stop yielding laterally and push into its gaps."""
-        if EGO_ID not in self._present_ids():
+        t = self._traffic_now()
+        if EGO_ID not in t.ids:
             return
-        ex, ey = libsumo.vehicle.getPosition(EGO_ID)
-        near = set()
-        for vid in libsumo.vehicle.getIDList():
-            if vid != EGO_ID and not self._crossings.is_pedestrian(vid):
-                x, y = libsumo.vehicle.getPosition(vid)
-                if (x - ex) ** 2 + (y - ey) ** 2 < 2500.0:
-                    near.add(vid)
-        for vid in near - self._cut_in:
+        d2 = np.sum((t.front - t.front[t.ids.index(EGO_ID)]) ** 2, axis=1)
+        near_mask = (d2 < 2500.0) & (self._table.agent_type[t.rows] != AgentType.PEDESTRIAN)
+        near = {t.ids[i] for i in np.flatnonzero(near_mask)} - {EGO_ID}
+        for vid in sorted(near - self._cut_in):
             libsumo.vehicle.setParameter(vid, "laneChangeModel.lcCooperative", "0")
             libsumo.vehicle.setParameter(vid, "laneChangeModel.lcPushy", "1")
             libsumo.vehicle.setParameter(vid, "laneChangeModel.lcAssertive", "5")
-        self._cut_in = near | {v for v in self._cut_in if v in self._present_ids()}
-
-    def _present_ids(self) -> set[str]:
-        return set(libsumo.vehicle.getIDList())
+        self._cut_in = near | (self._cut_in & set(t.ids))
 
     # ------------------------------------------------------------------ reading
-    def _read_lanes(self) -> dict[str, tuple[float, float]]:
-        """Lane id -> (its centre's offset from the carriageway centre, + left; direction, rad CCW from +x)."""
-        info = {}
+    def _read_lanes(self) -> tuple[dict[str, int], np.ndarray]:
+        """Lane id -> row of a (lanes + 1, 2) table: its centre's offset from the carriageway centre (m, + left)
+        and its direction (rad CCW from +x); the last row (0, nan) stands for "no lane"."""
+        index, rows = {}, []
         for lane in libsumo.lane.getIDList():
             shape = np.asarray(libsumo.lane.getShape(lane))
             d = shape[-1] - shape[0]
@@ -296,41 +306,38 @@ class SumoSimulator:
                 n = libsumo.edge.getLaneNumber(edge)
                 idx = int(lane.rsplit("_", 1)[1])
                 offset = (idx - (n - 1) / 2) * libsumo.lane.getWidth(lane)
-            info[lane] = (offset, math.atan2(d[1], d[0]))
-        return info
-
-    def _learn_types(self, ids: tuple[str, ...]) -> None:
-        for vid in ids:
-            if vid not in self._types:
-                vt = libsumo.vehicle.getTypeID(vid)
-                self._types[vid] = (int(agent_type_of(vt)), libsumo.vehicle.getLength(vid),
-                                    libsumo.vehicle.getWidth(vid))
+            index[lane] = len(rows)
+            rows.append((offset, math.atan2(d[1], d[0])))
+        rows.append((0.0, np.nan))
+        return index, np.array(rows, np.float64)
 
     def _frame(self, command: EgoCommand | None = None, moved: bool = False) -> Frame:
-        """Every agent now (plain getters: as fast as subscriptions in libsumo, see bench)."""
-        ids = libsumo.vehicle.getIDList()
-        self._learn_types(ids)
-        n = len(ids)
+        """Every agent now: getters for what moves, constants from the table (sumo_traffic.py says why)."""
         g = libsumo.vehicle
+        ids = g.getIDList()
+        n = len(ids)
+        rows = self._table.rows(libsumo, ids)
         front = np.array([g.getPosition(v) for v in ids], dtype=np.float64).reshape(n, 2)
-        angle = np.array([g.getAngle(v) for v in ids], dtype=np.float64)
-        speed = np.array([g.getSpeed(v) for v in ids], dtype=np.float64)
-        lanes = [g.getLaneID(v) for v in ids]
-        lat = np.array([g.getLateralLanePosition(v) for v in ids], dtype=np.float64)
-        tl = np.array([self._types[v] for v in ids], dtype=np.float64).reshape(n, 3)
-        info = np.array([self._lane_info.get(ln, (0.0, np.nan)) for ln in lanes], dtype=np.float64).reshape(n, 2)
-        heading = np.radians(90.0 - angle)
-        heading = np.arctan2(np.sin(heading), np.cos(heading))
+        angle = np.fromiter((g.getAngle(v) for v in ids), np.float64, n)
+        speed = np.fromiter((g.getSpeed(v) for v in ids), np.float64, n)
+        lane_of = self._lane_index.get
+        lane = np.fromiter((lane_of(g.getLaneID(v), -1) for v in ids), np.int64, n)
+        lat = np.fromiter((g.getLateralLanePosition(v) for v in ids), np.float64, n)
+        length, width, agent_type = self._table.length[rows], self._table.width[rows], self._table.agent_type[rows]
+        self._traffic = Traffic(self._steps, ids, rows, front, speed, length, width)  # the next step's gaps use it
+        info = self._lane_table[lane]
+        heading = np.mod(np.radians(90.0 - angle) + math.pi, 2 * math.pi) - math.pi
         sim_heading = np.where(np.isnan(info[:, 1]), heading, info[:, 1])
         # Centre of SUMO's own (lane-aligned) box, so boxes at sim_heading reproduce its collision geometry.
-        xy = front - np.stack([np.cos(sim_heading), np.sin(sim_heading)], -1) * (tl[:, 1:2] / 2)
+        xy = front - np.stack([np.cos(sim_heading), np.sin(sim_heading)], -1) * (length[:, None] / 2)
         lateral = info[:, 0] + lat
-        agent_id = np.array([self._crossings.public_id(v) for v in ids], dtype=object)
-        heading, speed = self._crossings.override_motion(ids, heading, speed, lateral, self.dt)
+        agent_id = self._table.public[rows]
+        speed = speed.copy()  # the Traffic read keeps SUMO's own speeds
+        self._crossings.override_motion(ids, heading, speed, self.dt)
         ego = -1
         if self._ghost is not None:
             if moved:
-                self._ghost.advance(command, self.dt, xy, heading, speed, tl[:, 1], tl[:, 2], agent_id)
+                self._ghost.advance(command, self.dt, xy, heading, speed, length, width, agent_id)
                 self._events += [Event("collision", round(self._t, 6), EGO_ID, other, "ghost ego overlap")
                                  for other in self._ghost.new_contacts]
             gx = self._ghost.state()
@@ -338,7 +345,8 @@ class SumoSimulator:
             xy = np.vstack([xy, gx["xy"][None]])
             heading, sim_heading = np.append(heading, gx["heading"]), np.append(sim_heading, gx["sim_heading"])
             speed, lateral = np.append(speed, gx["speed"]), np.append(lateral, gx["lateral"])
-            tl = np.vstack([tl, [[gx["type"], gx["length"], gx["width"]]]])
+            agent_type = np.append(agent_type, np.int8(gx["type"]))
+            length, width = np.append(length, gx["length"]), np.append(width, gx["width"])
             ego = n
         elif EGO_ID in ids:
             ego = ids.index(EGO_ID)
@@ -346,9 +354,9 @@ class SumoSimulator:
                 heading[ego] = sim_heading[ego] + math.atan2(self._ego_lat_v, max(float(speed[ego]), 1e-3))
                 speed[ego] = math.hypot(float(speed[ego]), self._ego_lat_v)
         return Frame(
-            t=round(self._t, 6), agent_id=agent_id.astype(str), agent_type=tl[:, 0].astype(np.int8),
+            t=round(self._t, 6), agent_id=agent_id.astype(str), agent_type=agent_type.astype(np.int8),
             xy=xy.astype(np.float32), heading=heading.astype(np.float32), speed=speed.astype(np.float32),
-            length=tl[:, 1].astype(np.float32), width=tl[:, 2].astype(np.float32), ego=ego,
+            length=length.astype(np.float32), width=width.astype(np.float32), ego=ego,
             extra={"sim_heading": sim_heading.astype(np.float32), "lateral_offset": lateral.astype(np.float32)},
             events=tuple(self._drain_events()),
         )

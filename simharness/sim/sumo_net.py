@@ -12,6 +12,7 @@ Every edge is straight, so positions along it are plain projections (used for pe
 from __future__ import annotations
 
 import dataclasses
+import functools
 import subprocess
 from pathlib import Path
 
@@ -39,12 +40,12 @@ class Carriageway:
     width: float
     centre_offset: float
 
-    @property
+    @functools.cached_property  # gap checks and crossers use it every step: compute once
     def direction(self) -> np.ndarray:
         d = self.end - self.start
         return d / np.linalg.norm(d)
 
-    @property
+    @functools.cached_property
     def right(self) -> np.ndarray:
         d = self.direction
         return np.array([d[1], -d[0]])

@@ -14,15 +14,18 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 
 import numpy as np
 
 from simharness.scenario import ScenarioSpec
 from simharness.sim.sumo_net import Carriageway, Network
+from simharness.sim.sumo_traffic import Traffic
 
 GAP_TIME = 3.0  # s: a vehicle closer than this (plus a margin) to the next band blocks a step
 MARGIN = 0.4  # m: lateral clearance kept to vehicles when stepping
 CURB = 0.35  # m: a pedestrian stands this far inside the carriageway edge
+PREFIX = "xped"  # SUMO ids "xped<k>.<carriageway>"; recorded as "xped<k>"
 
 
 @dataclasses.dataclass
@@ -64,35 +67,33 @@ class Crossings:
         self._by_vid: dict[str, Crosser] = {}
         self._routes: set[str] = set()
         self._clock = 0.0
-        self._internal: list[str] | None = None
-        self._traffic: _EdgeTraffic | None = None
         self.look_ahead = spec.dt  # s of walking covered by one gap decision
         self.walkers_prefix = "pedestrian."
 
     # ------------------------------------------------------------------ ids
-    def public_id(self, vid: str) -> str:
-        c = self._by_vid.get(vid)
-        return c.public if c is not None else vid
+    @staticmethod
+    def public_id(vid: str) -> str:
+        """The recorded id: a crosser is one SUMO vehicle per carriageway ("xped3.0", "xped3.1" -> "xped3")."""
+        return vid.rsplit(".", 1)[0] if vid.startswith(PREFIX) else vid
 
     def is_pedestrian(self, vid: str) -> bool:
-        return vid in self._by_vid or vid.startswith(self.walkers_prefix)
+        return vid.startswith(PREFIX) or vid.startswith(self.walkers_prefix)
 
-    def override_motion(self, ids: tuple[str, ...], heading: np.ndarray, speed: np.ndarray, lateral: np.ndarray,
-                        dt: float) -> tuple[np.ndarray, np.ndarray]:
-        """Crossers move sideways while SUMO reports them standing: record their real motion."""
-        if not self._by_vid:
-            return heading, speed
-        heading, speed = heading.copy(), speed.copy()
-        for i, vid in enumerate(ids):
-            c = self._by_vid.get(vid)
-            if c is None:
+    def override_motion(self, ids: tuple[str, ...], heading: np.ndarray, speed: np.ndarray, dt: float) -> None:
+        """Crossers move sideways while SUMO reports them standing: record their real motion.
+
+        ids (n,), heading (n,) rad, speed (n,) m/s of every vehicle; heading and speed are changed in place.
+        """
+        for vid, c in self._by_vid.items():  # a few crossers: look each up in the id tuple (C speed)
+            try:
+                i = ids.index(vid)
+            except ValueError:
                 continue
             d = c.cw.direction
             side = 1.0 if c.target > c.lat or (c.target >= c.prev_lat and c.lat == c.target) else -1.0
             heading[i] = math.atan2(d[0], -d[1]) if side > 0 else math.atan2(-d[0], d[1])
             speed[i] = abs(c.lat - c.prev_lat) / dt
             c.prev_lat = c.lat
-        return heading, speed
 
     def mark(self) -> None:
         """Forget motion so far (after unrecorded steps), so the next recorded speed covers one frame."""
@@ -100,11 +101,12 @@ class Crossings:
             c.prev_lat = c.lat
 
     # ------------------------------------------------------------------ stepping
-    def step(self, libsumo: object, dt: float, look: bool = True) -> None:
+    def step(self, libsumo: object, dt: float, look: bool, traffic: Callable[[], Traffic]) -> None:
         """One SUMO step's worth: spawn arrivals, move crossers whose next band is clear.
 
-        look: re-read the traffic for gap checks (once per recorded frame; in between, a crosser keeps
-        the decision it took, which is what a person does over 0.2 s).
+        look: decide on gaps now (once per recorded frame; in between, a crosser keeps the decision
+        it took, which is what a person does over 0.2 s). traffic: every vehicle now, called only
+        when a decision needs it (the recorded path hands over the frame it has just read).
         """
         if self.rate <= 0 and not self.active and not self.waiting:
             return
@@ -114,27 +116,24 @@ class Crossings:
             self.waiting.append(self._new_crosser())
         if not self.active and not self.waiting:
             return
-        if self._internal is None:
-            self._internal = [e for e in libsumo.edge.getIDList() if e.startswith(":")]
-        if look or self._traffic is None:
-            self._traffic = _EdgeTraffic(libsumo, self._internal)
-        traffic, reach = self._traffic, self.speed * self.look_ahead
-        for c in list(self.waiting):
-            if (look or c.go) and traffic.clear(c.cw, c.pos, c.lat, c.lat, self.speed):
-                self._enter(libsumo, c)
-                self.waiting.remove(c)
-        if look and self.active:  # SUMO may have removed one (teleport after a long wait): forget it
-            present = set(libsumo.vehicle.getIDList())
+        gaps = _Gaps(traffic()) if look else None
+        reach = self.speed * self.look_ahead
+        if gaps is not None and self.active:  # SUMO may have removed one (teleport after a long wait): forget it
+            present = set(gaps.ids)
             for c in [c for c in self.active if c.vid not in present]:
                 self.active.remove(c)
                 self._by_vid.pop(c.vid, None)
+        for c in list(self.waiting):
+            if gaps is not None and gaps.clear(c.cw, c.pos, c.lat, c.lat):
+                self._enter(libsumo, c)
+                self.waiting.remove(c)
         for c in list(self.active):
             if abs(c.target - c.lat) < 1e-6:
                 self._leave(libsumo, c)
                 continue
-            if look:  # decide for the frame: is the band up to one frame's walk ahead clear?
+            if gaps is not None:  # decide for the frame: is the band up to one frame's walk ahead clear?
                 ahead = c.lat + math.copysign(min(reach, abs(c.target - c.lat)), c.target - c.lat)
-                c.go = traffic.clear(c.cw, c.pos, c.lat, ahead, self.speed, exclude=c.vid)
+                c.go = gaps.clear(c.cw, c.pos, c.lat, ahead, exclude=c.vid)
             if c.go:
                 c.lat += math.copysign(min(self.speed * dt, abs(c.target - c.lat)), c.target - c.lat)
                 c.waited = 0.0
@@ -152,7 +151,8 @@ class Crossings:
             pos = cw.length - cw.width - 6.0
         pos += float(self.rng.uniform(-1.5, 1.5))  # a crosswalk is 3 m wide: people do not queue in single file
         half = cw.width / 2 - CURB
-        return Crosser(f"xped{self._count}", f"xped{self._count}.0", cw, pos, -half, half, _opposite(self.net, cw))
+        name = f"{PREFIX}{self._count}"
+        return Crosser(name, f"{name}.0", cw, pos, -half, half, _opposite(self.net, cw))
 
     def _xy(self, c: Crosser) -> tuple[float, float, float]:
         """World front-bumper point and SUMO angle (deg) for a crosser at (pos, lat)."""
@@ -198,38 +198,34 @@ class Crossings:
             self.waiting.insert(0, follow)
 
 
-class _EdgeTraffic:
-    """Vehicles on an edge and on the junctions (front xy, speed, footprint), read once per step and edge."""
+class _Gaps:
+    """Gap checks on one `Traffic` read, with each carriageway's projection computed once."""
 
-    def __init__(self, ls: object, internal: list[str]) -> None:
-        self.ls = ls
-        self._cache: dict[str, tuple[list[str], np.ndarray]] = {}
-        self._internal = internal
+    def __init__(self, traffic: Traffic) -> None:
+        self.traffic = traffic
+        self.ids = traffic.ids
+        self._frames: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
 
-    def _read(self, edge: str) -> tuple[list[str], np.ndarray]:
-        if edge not in self._cache:
-            v = self.ls.vehicle
-            ids = [vid for e in (edge, *self._internal) for vid in self.ls.edge.getLastStepVehicleIDs(e)]
-            rows = np.array([(*v.getPosition(vid), v.getSpeed(vid), v.getLength(vid), v.getWidth(vid))
-                             for vid in ids], dtype=float).reshape(len(ids), 5)
-            self._cache[edge] = (ids, rows)
-        return self._cache[edge]
+    def _on(self, cw: Carriageway) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(m,) indices of the vehicles on cw's strip, their front s (m along cw) and centre offset (m, + left)."""
+        if cw.edge not in self._frames:
+            rel = self.traffic.front - cw.start
+            s = rel @ cw.direction  # front bumper, metres along cw (node-line frame, like `pos`)
+            lat = cw.centre_offset - rel @ cw.right
+            # On this carriageway (or crossing it in the junction): the opposite direction is not a gap.
+            on = np.flatnonzero(np.abs(lat) <= cw.width / 2)
+            self._frames[cw.edge] = (on, s[on], lat[on])
+        return self._frames[cw.edge]
 
-    def clear(self, cw: Carriageway, pos: float, lat0: float, lat1: float, walk: float, exclude: str = "") -> bool:
+    def clear(self, cw: Carriageway, pos: float, lat0: float, lat1: float, exclude: str = "") -> bool:
         """True when no vehicle overlaps, or would reach within GAP_TIME, the band from lat0 to lat1 at pos."""
-        ids, rows = self._read(cw.edge)
-        keep = np.array([i != exclude for i in ids], bool)
-        if not keep.any():
-            return True
-        rows = rows[keep]
-        d, r = cw.direction, cw.right
-        rel = rows[:, :2] - cw.start
-        s = rel @ d  # front bumper, metres along cw (node-line frame, like `pos`)
-        lat = cw.centre_offset - rel @ r  # + left of the carriageway centre
-        v, length, width = rows[:, 2], rows[:, 3], rows[:, 4]
+        on, s, lat = self._on(cw)
+        t = self.traffic
+        v, length, width = t.speed[on], t.length[on], t.width[on]
         lo, hi = min(lat0, lat1) - 0.25 - MARGIN, max(lat0, lat1) + 0.25 + MARGIN
         lateral = (lat + width / 2 > lo) & (lat - width / 2 < hi)
         # The body covers [s - length, s]; it blocks if it is beside pos now or reaches it within GAP_TIME.
         ahead = s - length < pos + 0.25 + MARGIN
         reach = s + v * GAP_TIME + 0.5 > pos - 0.25
-        return not bool(np.any(lateral & ahead & reach))
+        block = lateral & ahead & reach
+        return not any(t.ids[i] != exclude for i in on[block])  # the few blockers: is any not the crosser itself?

@@ -1,0 +1,127 @@
+"""Predictor benchmark: training throughput, batched inference time, and the accuracy table.
+
+    python bench/predictor.py            # --quick (default): small budget, a few minutes on 2 cores
+    python bench/predictor.py --full     # more data and the paper's 16 epochs
+    python bench/predictor.py --data DIR # reuse a data set generated from sumo_arterial_dense
+
+Prints figures measured in this run: samples/s of training (batch building from the cached index +
+forward + backward + Adam step), ms per batched forecast of every agent of a ~100-agent frame, and
+ADE/FDE (mean Euclidean and RMSE) of TraPHic, its three ablations and constant velocity on the held-out
+scenes, all trained with the same budget; writes the RMSE-per-second figure of all methods.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+os.environ.setdefault("OMP_NUM_THREADS", "2")
+
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+
+from predictor.features import WindowConfig  # noqa: E402
+from predictor.losses import mse  # noqa: E402
+from predictor.models import build_model  # noqa: E402
+from predictor.models.const_vel import ConstantVelocity  # noqa: E402
+from predictor.predict import ModelPredictor  # noqa: E402
+from predictor.train import load_windows, train  # noqa: E402
+from simharness.evaluation import evaluate, format_table  # noqa: E402
+from simharness.io.parquet import Dataset  # noqa: E402
+from simharness.report import plot_rmse_curve  # noqa: E402
+
+VARIANTS = ("traphic-b", "traphic-he", "traphic-ho", "traphic")
+
+
+def throughput(data: Path, batches: int = 30, batch_size: int = 128) -> float:
+    """Training samples per second incl. batch building, measured after 5 warm-up batches."""
+    store = load_windows(data, WindowConfig(), progress=False)
+    torch.manual_seed(0)
+    net = build_model("traphic", {"history": store.H, "future": store.F})
+    opt = torch.optim.Adam(net.parameters(), lr=1e-3)
+    rng = np.random.default_rng(0)
+    t0 = 0.0
+    for i in range(batches + 5):
+        if i == 5:
+            t0 = time.perf_counter()
+        b = store.batch(rng.integers(0, len(store), batch_size)).tensors()
+        loss = mse(net(b), b["fut"], b["fut_valid"])
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    return batches * batch_size / (time.perf_counter() - t0)
+
+
+def inference_ms(data: Path, predictor: ModelPredictor, calls: int = 20) -> tuple[float, int]:
+    """Median ms of one predict() call for every agent present at a frame with ~100 agents."""
+    scene = Dataset(data).scene(0)
+    counts = scene.valid.sum(0)
+    now = int(np.argmin(np.abs(counts - 100) + 1000 * (np.arange(scene.num_frames) < 15)))
+    hist = scene.slice_frames(now - 14, now + 1)
+    rows = np.flatnonzero(hist.valid[:, -1])
+    predictor.predict(hist, rows, 25)
+    times = []
+    for _ in range(calls):
+        t = time.perf_counter()
+        predictor.predict(hist, rows, 25)
+        times.append(time.perf_counter() - t)
+    return 1000 * float(np.median(times)), len(rows)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--full", action="store_true")
+    ap.add_argument("--data", type=Path, default=None)
+    ap.add_argument("--out", type=Path, default=Path("runs/bench_predictor"))
+    args = ap.parse_args()
+    torch.set_num_threads(2)
+    seeds, duration, samples, epochs, warmup = ("0-5", 40, 3000, 3, 1) if not args.full else ("0-19", 60, None, 16, 2)
+    data = args.data or args.out / "data"
+    if args.data is None and not (data / "manifest.json").is_file():
+        subprocess.run([sys.executable, "-m", "simharness", "generate", "sumo_arterial_dense", "--seeds", seeds,
+                        "--out", str(data), "--duration", str(duration)], check=True)
+    t = time.perf_counter()
+    load_windows(data, WindowConfig())
+    print(f"windows index built or loaded in {time.perf_counter() - t:.1f} s")
+    sps = throughput(data)
+    print(f"training throughput: {sps:.0f} samples/s (batch 128, data loading included, "
+          f"{torch.get_num_threads()} threads; target >= 1000, the authors' code ~200)")
+    results, curves, train_s = {}, {}, {}
+    for name in VARIANTS:
+        t = time.perf_counter()
+        res = train(data, name, args.out / name, epochs=epochs, warmup_epochs=warmup, max_samples=samples,
+                    max_val_samples=2000, seed=0, progress=False)
+        train_s[name] = time.perf_counter() - t
+        pred = ModelPredictor.from_run(args.out / name)
+        if name == "traphic":
+            ms, n = inference_ms(data, pred)
+            print(f"inference: {ms:.1f} ms for all {n} agents of a frame in one call (target <= 20 ms)")
+        results[name] = evaluate(data, pred, "traphic", split="test", progress=False, name=name)
+        curves[name] = results[name]["rmse_per_second"]
+        print(f"{name}: trained {train_s[name]:.0f} s ({res['samples_per_s']:.0f} samples/s), best epoch "
+              f"{res['best_epoch']}")
+    results["const-vel"] = evaluate(data, ConstantVelocity(), "traphic", split="test", progress=False,
+                                    name="const-vel")
+    curves["const-vel"] = results["const-vel"]["rmse_per_second"]
+    print(f"\naccuracy on the held-out scenes of {data} ({'full' if args.full else 'quick'} budget: "
+          f"{samples or 'all'} windows x {epochs} epochs):")
+    print(format_table(results))
+    print("RMSE per horizon second (m): " + "; ".join(
+        f"{k} " + " ".join(f"{v:.2f}" for v in c) for k, c in curves.items()))
+    order = sorted(VARIANTS, key=lambda k: results[k]["ade_rmse"])
+    print(f"ablation order, best to worst by ADE-RMSE: {' < '.join(order)} (paper: traphic < traphic-ho < "
+          "traphic-he < traphic-b)")
+    fig = plot_rmse_curve(curves, args.out / "rmse_curve.png", title="RMSE per horizon second, dense arterial")
+    (args.out / "results.json").write_text(json.dumps({"throughput": sps, "results": results,
+                                                       "train_seconds": train_s}, indent=1) + "\n")
+    print(f"-> {fig}, {args.out / 'results.json'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

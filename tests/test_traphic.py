@@ -1,0 +1,81 @@
+"""The TraPHic network: shapes, output ranges, ablation switches, overfitting, world-frame forecasts."""
+
+import numpy as np
+import pytest
+import torch
+
+from predictor.features import FEATURES, FeatureStore, WindowConfig, to_world
+from predictor.losses import mse
+from predictor.models import build_model
+from predictor.predict import ModelPredictor
+
+from _predictor_data import flow_scene
+
+torch.set_num_threads(1)
+
+
+@pytest.fixture(scope="module")
+def store():
+    return FeatureStore.build([flow_scene(0, n=20)], ["s0"], WindowConfig())
+
+
+@pytest.mark.parametrize("name", ["traphic", "traphic-he", "traphic-ho", "traphic-b"])
+def test_forward_shapes_and_ranges(store, name):
+    torch.manual_seed(0)
+    model = build_model(name, {"history": store.H, "future": store.F})
+    out = model(store.batch(np.arange(9)).tensors())
+    assert out.shape == (9, 25, 5)
+    assert (out[..., 2:4] > 0).all() and (out[..., 4].abs() < 1).all()
+    has_horizon = any(k.startswith("hz") for k in model.state_dict())
+    assert has_horizon == (name in ("traphic", "traphic-ho"))
+
+
+def test_heterogeneous_switch_decides_what_the_model_sees(store):
+    batch = store.batch(np.arange(6)).tensors()
+    changed = {k: v.clone() for k, v in batch.items()}
+    t0 = FEATURES.index("type_car")
+    for key in ("hist", "nbr", "hz"):  # new sizes and types, same positions
+        changed[key][..., t0:t0 + 9] = changed[key][..., t0:t0 + 9].flip(-1)
+        changed[key][..., FEATURES.index("length")] *= 3
+    for name, sees in (("traphic", True), ("traphic-ho", False), ("traphic-b", False), ("traphic-he", True)):
+        torch.manual_seed(0)
+        model = build_model(name, {"history": store.H, "future": store.F})
+        with torch.no_grad():
+            diff = (model(batch) - model(changed)).abs().max().item()
+        assert (diff > 1e-6) == sees, name
+
+
+def test_overfits_a_tiny_data_set(store):
+    torch.manual_seed(0)
+    model = build_model("traphic", {"history": store.H, "future": store.F})
+    batch = store.batch(np.arange(0, len(store), max(1, len(store) // 16))[:16]).tensors()
+    opt = torch.optim.Adam(model.parameters(), lr=3e-3)
+    first = None
+    for _ in range(120):
+        loss = mse(model(batch), batch["fut"], batch["fut_valid"])
+        first = first if first is not None else loss.item()
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    assert loss.item() < 0.05 * first
+
+
+def test_predictor_forecasts_in_world_frame_for_all_agents_at_once():
+    torch.manual_seed(0)
+    scene = flow_scene(1, n=30, t=20)
+    model = build_model("traphic", {"history": 15, "future": 25})
+    pred = ModelPredictor(model.eval(), WindowConfig(), "traphic")
+    rows = np.arange(30)
+    fa = pred.predict(scene, rows, 25)
+    theta, shift = 0.8, np.array([50.0, -20.0])
+    moved = scene.replace(xy=to_world(scene.xy.astype(np.float64), shift, np.array(theta)),
+                          heading=scene.heading + theta)
+    fb = pred.predict(moved, rows, 25)
+    assert fa.mean.shape == (30, 25, 2) and fa.sigma_rho.shape == (30, 25, 3)
+    np.testing.assert_allclose(to_world(fa.mean.astype(np.float64), shift, np.array(theta)), fb.mean, atol=2e-3)
+    # a rotation keeps the covariance's determinant: sx sy sqrt(1 - rho^2)
+    det = lambda s: s[..., 0] * s[..., 1] * np.sqrt(1 - s[..., 2] ** 2)  # noqa: E731
+    np.testing.assert_allclose(det(fa.sigma_rho), det(fb.sigma_rho), rtol=1e-3)
+    assert list(fa.agent_id) == list(scene.agent_id)
+    # the forecast starts near each agent's current position
+    assert np.abs(fa.mean[:, 0] - scene.xy[:, -1]).max() < 30
