@@ -46,20 +46,22 @@ def main() -> int:
     p.add_argument("--reaction", default="cut_in")
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--out", type=Path, default=Path("runs/bench_closedloop"))
+    p.add_argument("--traphic", default="traphic", help="TraPHic to use: 'traphic' (shipped) or a run folder")
     args = p.parse_args()
     seeds, duration = (list(range(20)), 60.0) if args.full else (list(range(6)), 30.0)
     spec = prepare_spec(load_scenario(args.scenario), args.reaction).with_overrides({"duration": duration})
-    egos = list(EGOS)
+    egos = [args.traphic if e == "traphic" else e for e in EGOS]
     try:
         from simharness.predictors import load_predictor
 
-        load_predictor("traphic")
+        load_predictor(args.traphic)
     except (UserError, ImportError, OSError) as e:
         print(f"note: TraPHic not available ({e}); scorecard without it", file=sys.stderr)
-        egos.remove("traphic")
+        egos.remove(args.traphic)
+    traphic = args.traphic if args.traphic in egos else None
 
     # 1. Speed: one episode in this process (nothing else running).
-    name = "traphic" if "traphic" in egos else "const-vel"
+    name = traphic or "const-vel"
     t0 = time.perf_counter()
     r = run_episode(EpisodeJob(spec.with_overrides({"duration": 60.0}), 0, name, LoopConfig(), keep_scene=False))
     wall = time.perf_counter() - t0
@@ -78,7 +80,8 @@ def main() -> int:
     t1 = time.perf_counter()
     for ego in egos:
         results = run_closed_loop(spec, ego, seeds, workers=args.workers, keep_forecasts=seeds[:1])
-        scores[ego] = write_run(args.out / ego, spec, ego, results, animate=1 if ego == egos[0] else 0)
+        label = "traphic" if ego == traphic else ego
+        scores[label] = write_run(args.out / label, spec, label, results, animate=1 if ego == egos[0] else 0)
     print(scorecard_table(scores))
     print(f"(scorecard wall time {time.perf_counter() - t1:.0f} s with {args.workers} workers)")
     report = write_report(args.out, title=f"Closed-loop benchmark: {spec.name}, reaction {spec.ego.reaction}")

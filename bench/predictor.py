@@ -20,7 +20,7 @@ import sys
 import time
 from pathlib import Path
 
-os.environ.setdefault("OMP_NUM_THREADS", "2")
+os.environ.setdefault("OMP_NUM_THREADS", "1")  # one thread: two spin-wait badly on a shared, loaded machine
 
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
@@ -78,9 +78,12 @@ def main() -> int:
     ap.add_argument("--full", action="store_true")
     ap.add_argument("--data", type=Path, default=None)
     ap.add_argument("--out", type=Path, default=Path("runs/bench_predictor"))
+    ap.add_argument("--max-samples", type=int, default=None, help="override the training windows per model")
+    ap.add_argument("--epochs", type=int, default=None, help="override the epochs per model")
     args = ap.parse_args()
-    torch.set_num_threads(2)
+    torch.set_num_threads(int(os.environ["OMP_NUM_THREADS"]))
     seeds, duration, samples, epochs, warmup = ("0-5", 40, 3000, 3, 1) if not args.full else ("0-19", 60, None, 16, 2)
+    samples, epochs = args.max_samples or samples, args.epochs or epochs
     data = args.data or args.out / "data"
     if args.data is None and not (data / "manifest.json").is_file():
         subprocess.run([sys.executable, "-m", "simharness", "generate", "sumo_arterial_dense", "--seeds", seeds,

@@ -46,7 +46,14 @@ import numpy as np
 
 from simharness.errors import UserError
 from simharness.metrics import comfort, displacement, safety
-from simharness.planners import BackgroundPlanner, ConstantSpeedPlanner, EgoLimits, Planner, SamplingPlanner
+from simharness.planners import (
+    BackgroundPlanner,
+    ConstantSpeedPlanner,
+    EgoLimits,
+    Planner,
+    SamplingPlanner,
+    rows_of,
+)
 from simharness.scenario import ScenarioSpec, load_scenario
 from simharness.scene import AgentType, Forecast, Predictor, Scene
 from simharness.sim.base import Frame, RoadGeometry, scene_from_frames
@@ -122,14 +129,13 @@ class ReplayOracle:
     def __init__(self, reference: Scene, tolerance: float = 1.0) -> None:
         self.reference = reference
         self.tolerance = tolerance
-        self._row = {a: i for i, a in enumerate(reference.agent_id.tolist())}
 
     def predict(self, history: Scene, targets: np.ndarray, horizon: int) -> Forecast:
         """Forecast (M, horizon, 2) of history rows `targets`."""
         targets = np.asarray(targets, int)
         now = history.frame0 + history.num_frames - 1
         ref = self.reference
-        rows = np.array([self._row.get(a, -1) for a in history.agent_id[targets].tolist()], int)  # M lookups
+        rows = rows_of(ref.agent_id, history.agent_id[targets])
         cols = np.minimum(now + np.arange(horizon + 1), ref.num_frames - 1)  # now, then the future
         inside = (now + np.arange(horizon + 1)) < ref.num_frames
         r = np.maximum(rows, 0)
@@ -158,11 +164,8 @@ class LookaheadOracle:
         mean = _constant_velocity(history, targets, horizon)
         for f in range(horizon):  # frames of the copy; agents matched by id inside, vectorised
             frame = clone.step(None)
-            order = np.argsort(frame.agent_id)
-            pos = np.clip(np.searchsorted(frame.agent_id, ids, sorter=order), 0, max(frame.num_agents - 1, 0))
-            hit = order[pos] if frame.num_agents else pos
-            found = (frame.agent_id[hit] == ids) if frame.num_agents else np.zeros(ids.size, bool)
-            mean[found, f] = frame.xy[hit[found]]
+            hit = rows_of(frame.agent_id, ids)
+            mean[hit >= 0, f] = frame.xy[hit[hit >= 0]]
         return Forecast(agent_id=ids, mean=mean, dt=history.dt)
 
 
@@ -376,11 +379,10 @@ def online_errors(scene: Scene, issued: _Issued) -> dict[str, Any]:
     keys = ("online_ade", "online_fde", "online_ade_rmse", "online_fde_rmse")
     if not issued.forecasts:
         return {**dict.fromkeys(keys, math.nan), "online_samples": 0, "online_by_type": {}}
-    index = {a: i for i, a in enumerate(scene.agent_id.tolist())}
     horizon = min(f.horizon for f in issued.forecasts)
     preds, truths, valids, types = [], [], [], []
     for k, f in zip(issued.frames, issued.forecasts, strict=True):  # one entry per forecast, arrays inside
-        rows = np.array([index.get(a, -1) for a in f.agent_id.tolist()], int)
+        rows = rows_of(scene.agent_id, f.agent_id)
         cols = k + 1 + np.arange(horizon)
         inside = cols < scene.num_frames
         cc = np.minimum(cols, scene.num_frames - 1)

@@ -53,12 +53,13 @@ def evaluate(data: Path, predictor: Predictor, protocol: EvalProtocol | str = "t
     else:
         raise UserError(f"unknown split {split!r}; expected test or all")
     preds, truths, valids, sigmas, modes, types, counts = [], [], [], [], [], [], []
-    units, step_dt, example = None, None, None
+    units, step_dt, example, scale, has_scale = None, None, None, 1.0, False
     for sid in tqdm(chosen, desc=f"evaluate {name}".strip(), unit="scene", disable=not progress):
         scene = prepare(ds.scene(sid), protocol)  # eth-ucy: skip frames nobody was annotated in
         if units is not None and scene.units != units:
             raise UserError(f"{data}: scene {sid!r} is in {scene.units!r}, others in {units!r}")
         units, step_dt = scene.units, scene.dt * protocol.step(scene.dt)
+        has_scale = "units_per_m" in scene.meta
         scale = float(scene.meta.get("units_per_m", 1.0)) if scene.units != "m" else 1.0
         wins = list(windows(scene, protocol))
         for now, rows in wins:
@@ -87,7 +88,8 @@ def evaluate(data: Path, predictor: Predictor, protocol: EvalProtocol | str = "t
     out: dict[str, Any] = {"predictor": name, "protocol": dataclasses_dict(protocol), "split": split,
                            "scenes": len(chosen), "units": units, **dm.summary(pred, truth, valid)}
     out["rmse_per_second"] = [float(v) for v in dm.rmse_per_second(pred, truth, valid, step_dt)]
-    out["miss_rate_2m"] = dm.miss_rate(pred, truth, valid, 2.0 * (1.0 if units == "m" else math.nan))
+    # 2 m in the scene's units; pixel data without a scale gets no miss rate rather than a wrong one.
+    out["miss_rate_2m"] = dm.miss_rate(pred, truth, valid, 2.0 * scale) if units == "m" or has_scale else None
     out["nll"] = (dm.bivariate_nll(pred, np.concatenate(sigmas), truth, valid)
                   if all(s is not None for s in sigmas) else None)
     if all(m is not None for m in modes):

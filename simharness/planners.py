@@ -173,7 +173,7 @@ class SamplingPlanner:
         """
         cfg, e = self.config, now.ego
         le, we = float(now.length[e]), float(now.width[e])
-        rows = _rows_of(now.agent_id, forecast.agent_id)
+        rows = rows_of(now.agent_id, forecast.agent_id)
         keep = (rows >= 0) & (rows != e)
         axy = forecast.mean[keep, :frames].astype(np.float32)  # (M, F, 2)
         rows = rows[keep]
@@ -238,7 +238,7 @@ class ConstantSpeedPlanner:
         return EgoCommand(0.0, 0.0)
 
 
-def _rows_of(ids: np.ndarray, wanted: np.ndarray) -> np.ndarray:
+def rows_of(ids: np.ndarray, wanted: np.ndarray) -> np.ndarray:
     """Row of each wanted id in ids, -1 where absent: ids (N,), wanted (M,) -> (M,) int."""
     if len(ids) == 0:
         return np.full(len(wanted), -1)

@@ -9,7 +9,9 @@ and encoded by a single-layer LSTM (hidden 64):
   neighbour map), then its own ConvNet -> f_nb;
 - ego layer: the target's own hidden state h_i.
 z = concat(h_i, f_hz, f_nb) feeds an LSTM decoder (hidden 128) that emits a bivariate Gaussian
-(mu_x, mu_y, sigma_x, sigma_y, rho) per future step, in the target's frame (metres).
+(mu_x, mu_y, sigma_x, sigma_y, rho) per future step, in the target's frame (metres); the means are
+emitted as per-step displacements and summed, sigma (a standard deviation, softplus) and rho (tanh)
+directly per step.
 
 Ablations (section 5), by two switches:
 - heterogeneous: the state holds shape, type, velocity, relative velocity, concentration and
@@ -54,6 +56,7 @@ class TraPHicConfig:
     max_neighbours: int = 12
     max_horizon: int = 6
     pos_scale: float = 10.0
+    step_scale: float = 2.0
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -133,6 +136,7 @@ class TraPHic(nn.Module):
         z = torch.cat(parts, -1)
         y, _ = self.decoder(z[:, None].expand(-1, cfg.future, -1))
         o = self.out(y)
-        mu = o[..., :2] * cfg.pos_scale
+        # Means as summed per-step displacements: a constant output is constant velocity, easy to start from.
+        mu = torch.cumsum(o[..., :2], 1) * cfg.step_scale
         sigma = (fn.softplus(o[..., 2:4]) + 1e-3) * cfg.pos_scale
         return torch.cat([mu, sigma, torch.tanh(o[..., 4:5])], -1)

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import os
 import subprocess
 from pathlib import Path
 
@@ -113,7 +114,7 @@ def build_network(road: RoadSpec, folder: Path) -> Network:
 
     (folder / "net.nod.xml").write_text(
         "<nodes>\n" + "".join(
-            f'  <node id="{n}" x="{x:.3f}" y="{y:.3f}" type="{"priority" if n == "C" else "dead_end"}"/>\n'
+            f'  <node id="{n}" x="{x:.3f}" y="{y:.3f}" type="{os.environ.get("CTYPE", "priority") if n == "C" else "dead_end"}"/>\n'
             for n, (x, y) in nodes.items()) + "</nodes>\n")
     (folder / "net.edg.xml").write_text(
         "<edges>\n" + "".join(

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 from collections.abc import Callable
 
 import numpy as np
@@ -148,7 +149,7 @@ class Crossings:
         if self.net.routes.get(f"r_{cw.edge}") == (cw.edge,):  # arterial: anywhere mid-block
             pos = float(self.rng.uniform(0.2, 0.8) * cw.length)
         else:  # intersection arm: a crossing 6 m before the junction
-            pos = cw.length - cw.width - 6.0
+            pos = cw.length - float(os.environ.get("XBACK", "13"))
         pos += float(self.rng.uniform(-1.5, 1.5))  # a crosswalk is 3 m wide: people do not queue in single file
         half = cw.width / 2 - CURB
         name = f"{PREFIX}{self._count}"
