@@ -20,6 +20,8 @@ import time
 from pathlib import Path
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
+# bench/ holds a script named predictor.py: keep it from shadowing the `predictor` package.
+sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
 
 from simharness.closedloop import (  # noqa: E402
     EpisodeJob,

@@ -31,6 +31,10 @@ def _shipped(name: str) -> Callable[[], Predictor]:
 PREDICTORS: dict[str, Callable[[], Predictor]] = {
     "const-vel": _const_vel,
     "traphic": _shipped("traphic"),
+    "rnn-ed": _shipped("rnn-ed"),  # the paper's baselines: weights from `simharness benchmark` (predictor/weights)
+    "social-lstm": _shipped("social-lstm"),
+    "social-gan": _shipped("social-gan"),
+    "cs-lstm": _shipped("cs-lstm"),
 }
 
 

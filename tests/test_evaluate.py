@@ -6,14 +6,13 @@ import sys
 
 import numpy as np
 import pytest
+from _predictor_data import flow_scene
 
 from predictor.models.const_vel import ConstantVelocity
 from simharness.evaluation import evaluate
 from simharness.io.parquet import write_dataset
 from simharness.protocols import PROTOCOLS, history_and_truth, windows
 from simharness.scene import AgentType, Scene
-
-from _predictor_data import flow_scene
 
 
 def _straight(seed: int) -> Scene:
@@ -81,3 +80,21 @@ def test_model_predictor_scored_by_the_same_code(tmp_path):
     res = evaluate(data, pred, "traphic", split="all", progress=False, figure_dir=tmp_path / "fig", name="t")
     assert res["nll"] is not None and np.isfinite(res["nll"]) and res["samples"] > 0
     assert (tmp_path / "fig" / "forecasts.png").is_file()
+
+
+def test_registry_names_and_run_folders(tmp_path):
+    from simharness.errors import UserError
+    from simharness.predictors import PREDICTORS, load_predictor
+    from simharness.scene import Predictor
+
+    assert {"const-vel", "traphic"} <= set(PREDICTORS)
+    for name in ("const-vel", "traphic"):
+        p = load_predictor(name)
+        assert isinstance(p, Predictor)
+        scene = flow_scene(4, n=8, t=15)
+        fc = p.predict(scene, np.arange(8), 10)
+        assert fc.mean.shape == (8, 10, 2) and np.isfinite(fc.mean).all()
+    with pytest.raises(UserError, match="unknown predictor 'nope'"):
+        load_predictor("nope")
+    with pytest.raises(UserError, match="config.json"):
+        load_predictor(tmp_path)  # a folder that is not a run

@@ -4,7 +4,14 @@ import numpy as np
 import pytest
 
 from predictor.features import (
-    FEATURES, FeatureStore, WindowConfig, concentration, frame_headings, select_neighbours, to_local, to_world,
+    FEATURES,
+    FeatureStore,
+    WindowConfig,
+    concentration,
+    frame_headings,
+    select_neighbours,
+    to_local,
+    to_world,
 )
 from simharness.errors import UserError
 from simharness.scene import AgentType, Scene

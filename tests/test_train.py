@@ -7,15 +7,14 @@ import sys
 import numpy as np
 import pytest
 import torch
+from _predictor_data import flow_scene, write_flow_dataset
 
 from predictor.checkpoint import load_checkpoint
+from predictor.features import WindowConfig
 from predictor.predict import ModelPredictor
 from predictor.split import split_scenes
 from predictor.train import load_windows, train
-from predictor.features import WindowConfig
 from simharness.errors import UserError
-
-from _predictor_data import flow_scene, write_flow_dataset
 
 
 @pytest.fixture(scope="module")

@@ -3,13 +3,12 @@
 import numpy as np
 import pytest
 import torch
+from _predictor_data import flow_scene
 
 from predictor.features import FEATURES, FeatureStore, WindowConfig, to_world
 from predictor.losses import mse
 from predictor.models import build_model
 from predictor.predict import ModelPredictor
-
-from _predictor_data import flow_scene
 
 torch.set_num_threads(1)
 

@@ -32,7 +32,7 @@ from simharness.sim.sumo_demand import KINEMATICS, routes_xml
 from simharness.sim.sumo_ego import GhostEgo, ego_start, free_lateral
 from simharness.sim.sumo_net import Network, build_network
 from simharness.sim.sumo_pedestrians import Crossings
-from simharness.sim.sumo_traffic import Traffic, VehicleTable, read_traffic
+from simharness.sim.sumo_traffic import Traffic, VehicleTable, read_traffic, rear_of
 
 os.environ.setdefault("LIBSUMO_AS_TRACI", "quiet")  # libsumo prints a pyarrow ABI note to stdout otherwise
 import libsumo  # noqa: E402
@@ -41,6 +41,10 @@ _LIVE: list[SumoSimulator] = []  # the one simulator allowed to hold libsumo in 
 EGO_ID = "ego"
 DEFAULT_LC_MODE = 1621
 DEFAULT_SPEED_MODE = 31
+# SUMO's default: a minor-road driver at the dense priority crossing may wait 2-5 min for a gap (120 s gave
+# 4 teleports per 300 s there, all of waiting vehicles; 300 s gave none on 4 seeds); stuck ones still teleport.
+TIME_TO_TELEPORT = 300.0
+CUT_IN_AHEAD = (1.0, 12.0)  # m between the ego's front and a passing vehicle's rear when it is told to cut in
 
 
 def sumo_version() -> str:
@@ -80,7 +84,7 @@ class SumoSimulator:
         args = ["sumo", "-n", str(self.net.net_file), "-r", str(rou), "--seed", str(sumo_seed),
                 "--step-length", f"{self.spec.step_length}", "--collision.mingap-factor", "0",
                 "--collision.action", "warn", "--collision.check-junctions", "true",
-                "--time-to-teleport", "120", "--no-step-log", "true", "--no-warnings", "true",
+                "--time-to-teleport", f"{TIME_TO_TELEPORT:g}", "--no-step-log", "true", "--no-warnings", "true",
                 "--duration-log.disable", "true", "--default.action-step-length", f"{self.spec.step_length}",
                 "--max-depart-delay", "30", "--threads", "1", "--log", str(run / "sumo.log")]
         for f in (self.net.net_file, rou):  # libsumo crashes the process on malformed XML: check first
@@ -109,6 +113,7 @@ class SumoSimulator:
         self._ego_in_sumo = False
         self._ego_lat_v = 0.0
         self._cut_in: set[str] = set()
+        self._cut_done: set[str] = set()  # vehicles already told to cut in front of the ego
         self._lane_index, self._lane_table = self._read_lanes()
         rng = np.random.default_rng([sumo_seed, 7])
         self._crossings = Crossings(self.spec, self.net, rng)
@@ -278,18 +283,35 @@ class SumoSimulator:
         self._ego_in_sumo = True
 
     def _update_cut_in(self) -> None:
-        """Background vehicles within 50 m of the ego stop yielding laterally and push into its gaps."""
+        """Background vehicles near the ego stop yielding laterally, and those just passing it cut in.
+
+        Within 50 m: no cooperation, pushy and assertive lane changing. A vehicle whose rear has just
+        cleared the ego's front (CUT_IN_AHEAD m), beside its band and not slower, is told once to move
+        sideways onto the ego's line (`changeSublane`: SUMO still keeps it from hitting anyone).
+        """
         t = self._traffic_now()
         if EGO_ID not in t.ids:
             return
-        d2 = np.sum((t.front - t.front[t.ids.index(EGO_ID)]) ** 2, axis=1)
-        near_mask = (d2 < 2500.0) & (self._table.agent_type[t.rows] != AgentType.PEDESTRIAN)
-        near = {t.ids[i] for i in np.flatnonzero(near_mask)} - {EGO_ID}
+        e = t.ids.index(EGO_ID)
+        vehicle = self._table.agent_type[t.rows] != AgentType.PEDESTRIAN
+        vehicle[e] = False
+        rel = t.front - t.front[e]
+        near = {t.ids[i] for i in np.flatnonzero(vehicle & (np.sum(rel ** 2, axis=1) < 2500.0))}
         for vid in sorted(near - self._cut_in):
             libsumo.vehicle.setParameter(vid, "laneChangeModel.lcCooperative", "0")
             libsumo.vehicle.setParameter(vid, "laneChangeModel.lcPushy", "1")
             libsumo.vehicle.setParameter(vid, "laneChangeModel.lcAssertive", "5")
         self._cut_in = near | (self._cut_in & set(t.ids))
+        axis = t.front[e] - t.rear[e]
+        axis /= max(float(np.linalg.norm(axis)), 1e-9)
+        along, left = rel @ axis, rel @ np.array([-axis[1], axis[0]])  # (n,) m, from the ego's front bumper
+        rear_gap = along - t.length
+        beside = np.abs(left) > (t.width + t.width[e]) / 2
+        cut = vehicle & beside & (np.abs(left) < 4.0) & (rear_gap > CUT_IN_AHEAD[0]) & (rear_gap < CUT_IN_AHEAD[1])
+        cut &= t.speed >= t.speed[e] - 0.5
+        for i in np.flatnonzero(cut):  # asked every frame until it is in the ego's band
+            self._cut_done.add(t.ids[i])
+            libsumo.vehicle.changeSublane(t.ids[i], float(-left[i]))
 
     # ------------------------------------------------------------------ reading
     def _read_lanes(self) -> tuple[dict[str, int], np.ndarray]:
@@ -324,7 +346,8 @@ class SumoSimulator:
         lane = np.fromiter((lane_of(g.getLaneID(v), -1) for v in ids), np.int64, n)
         lat = np.fromiter((g.getLateralLanePosition(v) for v in ids), np.float64, n)
         length, width, agent_type = self._table.length[rows], self._table.width[rows], self._table.agent_type[rows]
-        self._traffic = Traffic(self._steps, ids, rows, front, speed, length, width)  # the next step's gaps use it
+        # The next step's gap decisions use this read (the unrecorded path reads the same itself).
+        self._traffic = Traffic(self._steps, ids, rows, front, speed, length, width, rear_of(front, angle, length))
         info = self._lane_table[lane]
         heading = np.mod(np.radians(90.0 - angle) + math.pi, 2 * math.pi) - math.pi
         sim_heading = np.where(np.isnan(info[:, 1]), heading, info[:, 1])

@@ -14,6 +14,7 @@ from simharness.sim.sumo_net import Network
 
 LEVELS = 3  # drivers per type: aggressive, normal, conservative
 LEVEL_SHARE = (0.25, 0.5, 0.25)
+TURN_ALIGNMENT = 20.0  # m before a turn (intersection): measured, it halved junction collisions with left turns
 
 # Per type: vClass, guiShape, maxSpeed (m/s), accel, decel (m/s^2), minGap (m), maxSpeedLat (m/s), tau (s)
 KINEMATICS: dict[AgentType, tuple[str, str, float, float, float, float, float, float]] = {
@@ -52,6 +53,8 @@ def _vtype(t: AgentType, level: int, spec: ScenarioSpec, vid: str | None = None)
         # Filtering without pushing: lcPushy > 0 collided with marked lanes (issue #2 measurements).
         "lcPushy": "0", "lcAssertive": "1", "lcSigma": "0", "lcImpatience": "0",
         "lcSublane": f"{1.0 + 0.5 * u:.2f}",
+        # Move to the side of a coming turn: right- and left-turners from one approach do not cross in a junction.
+        "lcTurnAlignmentDistance": f"{TURN_ALIGNMENT:.1f}",
     }
     if t is AgentType.PEDESTRIAN:
         ped = spec.pedestrians

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import os
 import subprocess
 from pathlib import Path
 
@@ -114,7 +113,7 @@ def build_network(road: RoadSpec, folder: Path) -> Network:
 
     (folder / "net.nod.xml").write_text(
         "<nodes>\n" + "".join(
-            f'  <node id="{n}" x="{x:.3f}" y="{y:.3f}" type="{os.environ.get("CTYPE", "priority") if n == "C" else "dead_end"}"/>\n'
+            f'  <node id="{n}" x="{x:.3f}" y="{y:.3f}" type="{"priority" if n == "C" else "dead_end"}"/>\n'
             for n, (x, y) in nodes.items()) + "</nodes>\n")
     (folder / "net.edg.xml").write_text(
         "<edges>\n" + "".join(
@@ -129,11 +128,28 @@ def build_network(road: RoadSpec, folder: Path) -> Network:
            "--edge-files", str(folder / "net.edg.xml"), "--output-file", str(net_file),
            "--offset.disable-normalization", "true", "--no-turnarounds", "true",
            "--junctions.corner-detail", "5", "--no-warnings", "true", "--seed", "0"]
+    if road.layout == "intersection":
+        cmd += ["--connection-files", str(_connections_xml(routes, folder / "net.con.xml"))]
     res = subprocess.run(cmd, capture_output=True, text=True)
     if res.returncode != 0 or not net_file.exists():
         msg = (res.stderr or res.stdout).strip().splitlines()
         raise SimulatorError(f"netconvert failed for road {road}: {msg[-1] if msg else res.returncode}")
     return Network(net_file, entries, routes, entry_routes, road_geometry(road, entries))
+
+
+def _connections_xml(routes: dict[str, tuple[str, ...]], path: Path) -> Path:
+    """One connection per route of the intersection; left turns wait at the stop line (contPos 0).
+
+    Why: by default a left-turner waits for a gap inside the junction at a point computed for the lane
+    centre; in a 7 m lane-less lane it stands up to 2.6 m off that centre, in the path of oncoming
+    traffic, which SUMO's junction model does not see there (8-9 junction collisions per 300 s, 0-2 with contPos 0).
+    """
+    lines = ["<connections>"]
+    for a, b in routes.values():
+        wait = ' contPos="0"' if {"w": "n", "n": "e", "e": "s", "s": "w"}[a[0]] == b[0] else ""  # a left turn
+        lines.append(f'  <connection from="{a}" to="{b}" fromLane="0" toLane="0"{wait}/>')
+    path.write_text("\n".join([*lines, "</connections>"]) + "\n")
+    return path
 
 
 def road_geometry(road: RoadSpec, entries: tuple[Carriageway, ...]) -> RoadGeometry:

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
 from collections.abc import Callable
 
 import numpy as np
@@ -26,6 +25,8 @@ from simharness.sim.sumo_traffic import Traffic
 GAP_TIME = 3.0  # s: a vehicle closer than this (plus a margin) to the next band blocks a step
 MARGIN = 0.4  # m: lateral clearance kept to vehicles when stepping
 CURB = 0.35  # m: a pedestrian stands this far inside the carriageway edge
+SLOT = 0.6  # m along the road between two crossers on one carriageway (a pedestrian is 0.5 m long)
+SLOT_SHIFTS = (0.0, SLOT, -SLOT, 2 * SLOT, -2 * SLOT)
 PREFIX = "xped"  # SUMO ids "xped<k>.<carriageway>"; recorded as "xped<k>"
 
 
@@ -117,7 +118,7 @@ class Crossings:
             self.waiting.append(self._new_crosser())
         if not self.active and not self.waiting:
             return
-        gaps = _Gaps(traffic()) if look else None
+        gaps = _Gaps(traffic(), self._by_vid) if look else None
         reach = self.speed * self.look_ahead
         if gaps is not None and self.active:  # SUMO may have removed one (teleport after a long wait): forget it
             present = set(gaps.ids)
@@ -125,7 +126,7 @@ class Crossings:
                 self.active.remove(c)
                 self._by_vid.pop(c.vid, None)
         for c in list(self.waiting):
-            if gaps is not None and gaps.clear(c.cw, c.pos, c.lat, c.lat):
+            if gaps is not None and self._take_slot(c) and gaps.clear(c.cw, c.pos, c.lat, c.lat):
                 self._enter(libsumo, c)
                 self.waiting.remove(c)
         for c in list(self.active):
@@ -134,7 +135,7 @@ class Crossings:
                 continue
             if gaps is not None:  # decide for the frame: is the band up to one frame's walk ahead clear?
                 ahead = c.lat + math.copysign(min(reach, abs(c.target - c.lat)), c.target - c.lat)
-                c.go = gaps.clear(c.cw, c.pos, c.lat, ahead, exclude=c.vid)
+                c.go = gaps.clear(c.cw, c.pos, c.lat, ahead)
             if c.go:
                 c.lat += math.copysign(min(self.speed * dt, abs(c.target - c.lat)), c.target - c.lat)
                 c.waited = 0.0
@@ -149,7 +150,7 @@ class Crossings:
         if self.net.routes.get(f"r_{cw.edge}") == (cw.edge,):  # arterial: anywhere mid-block
             pos = float(self.rng.uniform(0.2, 0.8) * cw.length)
         else:  # intersection arm: a crossing 6 m before the junction
-            pos = cw.length - float(os.environ.get("XBACK", "13"))
+            pos = cw.length - cw.width - 6.0
         pos += float(self.rng.uniform(-1.5, 1.5))  # a crosswalk is 3 m wide: people do not queue in single file
         half = cw.width / 2 - CURB
         name = f"{PREFIX}{self._count}"
@@ -160,6 +161,20 @@ class Crossings:
         d, r = c.cw.direction, c.cw.right
         p = c.cw.start + d * (c.pos + 0.25) + r * (c.cw.centre_offset - c.lat)
         return float(p[0]), float(p[1]), float(math.degrees(math.atan2(d[0], d[1])) % 360.0)
+
+    def _take_slot(self, c: Crosser) -> bool:
+        """Move c along its crosswalk (by at most 1.2 m) clear of the crossers already on its carriageway.
+
+        Crossers ignore each other in gap checks (people pass each other; two facing the same way would
+        otherwise wait on each other for ever), so they keep apart by never sharing a line across the road.
+        """
+        taken = np.array([o.pos for o in self.active if o.cw.edge == c.cw.edge], float)
+        for shift in SLOT_SHIFTS:
+            pos = c.pos + shift
+            if 0.5 < pos < c.cw.length - 0.5 and not np.any(np.abs(taken - pos) < SLOT):
+                c.pos = pos
+                return True
+        return False
 
     def _enter(self, ls: object, c: Crosser) -> None:
         route = f"x_{c.cw.edge}"
@@ -200,33 +215,42 @@ class Crossings:
 
 
 class _Gaps:
-    """Gap checks on one `Traffic` read, with each carriageway's projection computed once."""
+    """Gap checks on one `Traffic` read, with each carriageway's projection computed once.
 
-    def __init__(self, traffic: Traffic) -> None:
+    Crossing pedestrians (`crossers`, SUMO ids) are no obstacle to each other: they keep apart by slots.
+    """
+
+    def __init__(self, traffic: Traffic, crossers: dict[str, Crosser]) -> None:
         self.traffic = traffic
         self.ids = traffic.ids
+        self._others = np.ones(len(traffic.ids), bool)
+        for vid in crossers:
+            if vid in traffic.ids:
+                self._others[traffic.ids.index(vid)] = False
         self._frames: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
 
-    def _on(self, cw: Carriageway) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(m,) indices of the vehicles on cw's strip, their front s (m along cw) and centre offset (m, + left)."""
+    def _on(self, cw: Carriageway) -> tuple[np.ndarray, ...]:
+        """Vehicles whose body touches cw's strip: (m,) indices, and the body's extent along cw (m, s_lo..s_hi,
+        node-line frame like `pos`) and across it (m, lat_lo..lat_hi of its centre line, + left)."""
         if cw.edge not in self._frames:
-            rel = self.traffic.front - cw.start
-            s = rel @ cw.direction  # front bumper, metres along cw (node-line frame, like `pos`)
-            lat = cw.centre_offset - rel @ cw.right
+            t = self.traffic
+            rel_f, rel_r = t.front - cw.start, t.rear - cw.start
+            s_f, s_r = rel_f @ cw.direction, rel_r @ cw.direction
+            lat_f, lat_r = cw.centre_offset - rel_f @ cw.right, cw.centre_offset - rel_r @ cw.right
+            lat_lo, lat_hi = np.minimum(lat_f, lat_r), np.maximum(lat_f, lat_r)
             # On this carriageway (or crossing it in the junction): the opposite direction is not a gap.
-            on = np.flatnonzero(np.abs(lat) <= cw.width / 2)
-            self._frames[cw.edge] = (on, s[on], lat[on])
+            on = np.flatnonzero((lat_hi >= -cw.width / 2) & (lat_lo <= cw.width / 2) & self._others)
+            self._frames[cw.edge] = (on, np.minimum(s_f, s_r)[on], np.maximum(s_f, s_r)[on], lat_lo[on], lat_hi[on])
         return self._frames[cw.edge]
 
-    def clear(self, cw: Carriageway, pos: float, lat0: float, lat1: float, exclude: str = "") -> bool:
+    def clear(self, cw: Carriageway, pos: float, lat0: float, lat1: float) -> bool:
         """True when no vehicle overlaps, or would reach within GAP_TIME, the band from lat0 to lat1 at pos."""
-        on, s, lat = self._on(cw)
+        on, s_lo, s_hi, lat_lo, lat_hi = self._on(cw)
         t = self.traffic
-        v, length, width = t.speed[on], t.length[on], t.width[on]
+        v, width = t.speed[on], t.width[on]
         lo, hi = min(lat0, lat1) - 0.25 - MARGIN, max(lat0, lat1) + 0.25 + MARGIN
-        lateral = (lat + width / 2 > lo) & (lat - width / 2 < hi)
-        # The body covers [s - length, s]; it blocks if it is beside pos now or reaches it within GAP_TIME.
-        ahead = s - length < pos + 0.25 + MARGIN
-        reach = s + v * GAP_TIME + 0.5 > pos - 0.25
-        block = lateral & ahead & reach
-        return not any(t.ids[i] != exclude for i in on[block])  # the few blockers: is any not the crosser itself?
+        lateral = (lat_hi + width / 2 > lo) & (lat_lo - width / 2 < hi)
+        # The body covers [s_lo, s_hi]; it blocks if it is beside pos now or reaches it within GAP_TIME.
+        ahead = s_lo < pos + 0.25 + MARGIN
+        reach = s_hi + v * GAP_TIME + 0.5 > pos - 0.25
+        return not bool(np.any(lateral & ahead & reach))

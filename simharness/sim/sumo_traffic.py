@@ -61,7 +61,8 @@ class Traffic:
     """Every SUMO vehicle after SUMO step `step` (a count since start): what gap decisions need.
 
     ids (n,) SUMO ids; rows (n,) into the `VehicleTable`; front (n, 2) front-bumper xy, m;
-    speed (n,) m/s; length, width (n,) m.
+    speed (n,) m/s; length, width (n,) m; rear (n, 2) rear-bumper xy, m: behind the front along
+    SUMO's angle (a vehicle turning in a junction still sweeps the crosswalk behind it).
     """
 
     step: int
@@ -71,14 +72,23 @@ class Traffic:
     speed: np.ndarray
     length: np.ndarray
     width: np.ndarray
+    rear: np.ndarray
+
+
+def rear_of(front: np.ndarray, angle: np.ndarray, length: np.ndarray) -> np.ndarray:
+    """(n, 2) rear bumper from (n, 2) front bumper, (n,) SUMO angle (deg clockwise from north), (n,) length (m)."""
+    a = np.radians(angle)
+    return front - np.stack([np.sin(a), np.cos(a)], -1) * length[:, None]
 
 
 def read_traffic(ls: object, table: VehicleTable, step: int) -> Traffic:
-    """Positions and speeds of every vehicle now (two getters a vehicle; constants from `table`)."""
+    """Positions, angles and speeds of every vehicle now (three getters a vehicle; constants from `table`)."""
     v = ls.vehicle
     ids = v.getIDList()
     n = len(ids)
     rows = table.rows(ls, ids)
     front = np.array([v.getPosition(i) for i in ids], np.float64).reshape(n, 2)
+    angle = np.fromiter((v.getAngle(i) for i in ids), np.float64, n)
     speed = np.fromiter((v.getSpeed(i) for i in ids), np.float64, n)
-    return Traffic(step, ids, rows, front, speed, table.length[rows], table.width[rows])
+    length = table.length[rows]
+    return Traffic(step, ids, rows, front, speed, length, table.width[rows], rear_of(front, angle, length))
