@@ -348,7 +348,7 @@ def score_episode(scene: Scene, issued: _Issued, config: LoopConfig) -> dict[str
     ego_minutes = va[e].sum() * dt / 60.0
     agent_minutes = (va.sum() - va[e].sum()) * dt / 60.0
     by_type = safety.collisions_by_type(contact, scene.agent_type)
-    fault = safety.ego_at_fault(safety.spell_onsets(contact), xy, vel, e)
+    fault = safety.ego_at_fault(safety.spell_onsets(contact), xy, vel, hd, wd, va, e)
     out.update({
         "collided": float(contact.any()),
         "insertion_overlaps": int(placed[:, first].sum()),

@@ -165,3 +165,16 @@ def test_gan_predictor_gives_samples_and_best_of_k_takes_the_minimum() -> None:
     assert min_ade == pytest.approx(per_sample_ade.min(1).mean(), rel=1e-6)
     assert min_fde == pytest.approx(per_sample_fde.min(1).mean(), rel=1e-6)
     assert min_ade < per_sample_ade.mean(1).mean() and min_ade <= dm.ade(fc.modes[:, 0], truth, valid)
+
+
+@pytest.mark.parametrize("name", BASELINES)
+def test_shipped_baselines_load_by_name_and_forecast(name: str) -> None:
+    from simharness.predictors import load_predictor
+    from simharness.scene import Predictor
+
+    predictor = load_predictor(name)
+    assert isinstance(predictor, Predictor)
+    scene = platoon(seed=7).slice_frames(0, 15)
+    fc = predictor.predict(scene, np.arange(4), 25)
+    assert fc.mean.shape == (4, 25, 2) and np.isfinite(fc.mean).all()
+    assert (fc.sigma_rho is None) == (name == "social-gan") and (fc.modes is not None) == (name == "social-gan")

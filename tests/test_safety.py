@@ -125,3 +125,23 @@ def test_comfort_and_progress():
     assert comfort.time_stuck(stopped, np.ones(5, bool), dt) == pytest.approx(0.6)
     summary = comfort.comfort_summary(speed, heading, np.ones(26, bool), dt)
     assert summary["accel_max"] == pytest.approx(1.0, abs=1e-4) and summary["lat_accel_max"] == 0.0
+
+
+def test_at_fault_rule_on_three_contacts():
+    # Ego (row 0) at the origin heading +x; one frame; every other agent touching it.
+    xy = np.array([[[0, 0]], [[4.0, 0]], [[-4.0, 0]], [[0.5, 1.9]]], np.float64)
+    vel = np.array([[[8, 0]], [[0, 0]], [[12, 0]], [[8, -1.5]]], np.float64)  # stopped ahead, fast behind, cut-in
+    onsets = np.ones((4, 1), bool)
+    onsets[0] = False
+    heading = np.arctan2(vel[..., 1], vel[..., 0])
+    fault = safety.ego_at_fault(onsets, xy, vel, heading, np.full(4, 1.8), np.ones((4, 1), bool), ego=0)
+    assert fault[1, 0]  # ran into a stopped agent ahead
+    assert not fault[2, 0]  # rear-ended
+    assert not fault[3, 0]  # cut into from the side while holding its line
+    assert not fault[0, 0]
+    # The ego swerving left into a car holding its line beside it: the ego's fault.
+    xy2 = np.array([[[0, 0]], [[0.5, 1.7]], [[20, 0]], [[20, 3]]], np.float64)
+    vel2 = np.array([[[8, 1.5]], [[8, 0]], [[8, 0]], [[8, 0]]], np.float64)
+    fault2 = safety.ego_at_fault(onsets, xy2, vel2, np.arctan2(vel2[..., 1], vel2[..., 0]), np.full(4, 1.8),
+                                 np.ones((4, 1), bool), ego=0)
+    assert fault2[1, 0]

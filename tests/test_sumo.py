@@ -146,3 +146,60 @@ def test_road_geometry_matches_recorded_positions(dense: Scene):
     inside = sim.road.on_road(dense.xy[dense.valid & (dense.agent_type[:, None] != AgentType.PEDESTRIAN)])
     assert inside.mean() > 0.99
     assert len(sim.road.sidewalks) == 2
+
+
+def _cut_ins(scene: Scene, near: float = 20.0) -> int:
+    """Frames where a background vehicle moves sideways into the ego's band within `near` m ahead of it
+    (the arterial runs along +x, so the band is in y)."""
+    e = scene.ego
+    band = np.abs(scene.xy[..., 1] - scene.xy[e, :, 1]) < 0.5 * (scene.width[:, None] + scene.width[e])
+    gap = scene.xy[..., 0] - scene.xy[e, :, 0] - 0.5 * (scene.length[:, None] + scene.length[e])
+    ahead = scene.valid & scene.valid[e] & band & (gap > 0) & (gap < near)
+    ahead[e] = False
+    return int((ahead[:, 1:] & ~band[:, :-1] & scene.valid[:, :-1]).sum())
+
+
+def test_cut_in_reaction_cuts_in_front_of_the_ego():
+    counts, hits = {}, {}
+    for reaction in ("reactive", "cut_in"):
+        spec = load_scenario("sumo_arterial_dense").with_overrides({
+            "warmup": 20.0, "duration": 20.0, "ego.enabled": True, "ego.insert_at": 0.0, "ego.speed": 6.0,
+            "ego.reaction": reaction})
+        scenes = [_record(spec, seed, lambda _k, _f: EgoCommand(0.0, 0.0)) for seed in (1, 2)]
+        counts[reaction] = sum(_cut_ins(s) for s in scenes)
+        hits[reaction] = sum(e["kind"] == "collision" and "ego" in (e["agent_id"], e["other_id"])
+                             for s in scenes for e in s.meta["events"])
+    assert counts["cut_in"] >= counts["reactive"] + 4, counts
+    assert hits == {"reactive": 0, "cut_in": 0}  # cutting in, not running into the ego
+
+
+def test_unrecorded_stepping_is_the_same_simulation():
+    """`advance_unrecorded` (the bench's raw stepping) does the simulation work of `step`, no less."""
+    spec = load_scenario("sumo_intersection_dense").with_overrides({"warmup": 30.0, "duration": 12.0})
+    sim = SumoSimulator(spec)
+    sim.reset(1)
+    sim.advance_unrecorded(40)
+    raw = sim.step()
+    sim.close()
+    recorded = _record(spec.with_overrides({"duration": 8.4}), 1)
+    k = recorded.num_frames - 1
+    v = recorded.valid[:, k]
+    assert raw.t == pytest.approx(k * spec.dt)
+    order = np.argsort(raw.agent_id)
+    rows = np.flatnonzero(v)[np.argsort(recorded.agent_id[v])]
+    assert np.array_equal(raw.agent_id[order], recorded.agent_id[rows])
+    assert np.array_equal(raw.xy[order], recorded.xy[rows, k])
+    assert any(a.startswith("xped") for a in raw.agent_id)  # crossing pedestrians took part
+
+
+def test_intersection_left_turns_wait_at_the_stop_line_and_nobody_collides():
+    spec = load_scenario("sumo_intersection_dense").with_overrides({"duration": 60.0})
+    sim = SumoSimulator(spec)
+    net = sim.net.net_file.read_text()
+    assert net.count('contPos="0.00"') == 4  # the four left turns: no waiting point inside the junction
+    scene = _record(spec, 0)
+    kinds = [e["detail"].split()[1] for e in scene.meta["events"] if e["kind"] == "collision"]
+    assert not [k for k in kinds if "pedestrian" not in k], kinds  # vehicle-vehicle
+    assert not [k for k in kinds if k.count("pedestrian") == 2], kinds  # crossers keep apart
+    assert not [e for e in scene.meta["events"] if e["kind"] == "teleport"]
+    assert (scene.agent_type == AgentType.PEDESTRIAN).sum() >= 3

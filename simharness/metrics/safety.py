@@ -152,21 +152,38 @@ def background_collisions(
     return events[keep]
 
 
-def ego_at_fault(onsets: np.ndarray, xy: np.ndarray, velocity: np.ndarray, ego: int) -> np.ndarray:
-    """Which ego collisions the ego caused: at the onset, the ego's own velocity contributes more of the
-    closing speed along the line between the centres than the other's (so being rear-ended or cut into
-    while holding course is not the ego's fault; running into a slower or stopped agent is).
+def ego_at_fault(onsets: np.ndarray, xy: np.ndarray, velocity: np.ndarray, heading: np.ndarray,
+                 width: np.ndarray, valid: np.ndarray, ego: int, flow_radius: float = 30.0) -> np.ndarray:
+    """Which ego collisions the ego caused, judged in the local traffic-flow frame at the onset.
+
+    Flow direction: mean heading of the valid agents within `flow_radius` m of the ego that move the
+    ego's way. Contact in line (lateral overlap in that frame): the ego is at fault if the other is ahead
+    and the ego was faster along the flow (it ran into it), never when hit from behind. Contact side by
+    side: the ego is at fault if it moved across the flow towards the other faster than the other
+    moved towards it (so being cut into while holding its line is not its fault).
 
     onsets (N, T) bool (first frames of contact, e.g. `spell_onsets(ego_contact(...))`), xy (N, T, 2) m,
-    velocity (N, T, 2) m/s -> (N, T) bool, a subset of onsets.
+    velocity (N, T, 2) m/s, heading (N, T) rad, width (N,) m, valid (N, T) -> (N, T) bool, within onsets.
     """
     rows, cols = np.nonzero(onsets)
     out = np.zeros_like(onsets, dtype=bool)
     if ego < 0 or rows.size == 0:
         return out
-    u = xy[rows, cols] - xy[ego, cols]
-    u = u / np.maximum(np.linalg.norm(u, axis=-1, keepdims=True), 1e-9)  # ego -> other
-    ego_part = np.einsum("pd,pd->p", velocity[ego, cols], u)  # ego moving towards the other
-    other_part = -np.einsum("pd,pd->p", velocity[rows, cols], u)  # other moving towards the ego
-    out[rows, cols] = ego_part > other_part
+    # Flow axis per onset frame, from the neighbours' headings (vectorised over the onset frames).
+    he = heading[ego, cols]  # (P,)
+    near = valid[:, cols] & (np.linalg.norm(xy[:, cols] - xy[ego, cols][None], axis=-1) <= flow_radius)  # (N, P)
+    same_way = np.cos(heading[:, cols] - he[None]) > 0
+    w = (near & same_way).astype(np.float64)
+    axis = np.stack([(w * np.cos(heading[:, cols])).sum(0), (w * np.sin(heading[:, cols])).sum(0)], -1)  # (P, 2)
+    axis /= np.maximum(np.linalg.norm(axis, axis=-1, keepdims=True), 1e-9)
+    normal = np.stack([-axis[:, 1], axis[:, 0]], -1)
+    rel = xy[rows, cols] - xy[ego, cols]
+    along, lat = np.einsum("pd,pd->p", rel, axis), np.einsum("pd,pd->p", rel, normal)
+    ve, vo = velocity[ego, cols], velocity[rows, cols]
+    in_line = np.abs(lat) < (width[rows] + width[ego]) / 2 - 0.1
+    ran_into = (along > 0) & (np.einsum("pd,pd->p", ve, axis) > np.einsum("pd,pd->p", vo, axis))
+    side = np.sign(lat)
+    ego_in = np.einsum("pd,pd->p", ve, normal) * side  # ego moving across the flow towards the other
+    other_in = -np.einsum("pd,pd->p", vo, normal) * side  # other moving across the flow towards the ego
+    out[rows, cols] = np.where(in_line, ran_into, ego_in > other_in)
     return out

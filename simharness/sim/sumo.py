@@ -8,6 +8,10 @@ Recorded per agent and frame: centre xy (SUMO reports the front bumper), heading
 angle, degrees clockwise from north, follows lateral speed in the sub-lane model), speed, type and
 footprint, and extras "sim_heading" (SUMO's lane-aligned box heading, what its own collision check
 uses) and "lateral_offset" (m from the carriageway centre line, positive left).
+
+Reading (sumo_traffic.py): constants once per vehicle, five getters per vehicle and recorded frame
+(cheaper than subscriptions: bench/sumo_recording.py). Recorded and unrecorded stepping run the same
+simulation (tests/test_sumo.py); the recorded path hands its read to the crossing pedestrians.
 """
 
 from __future__ import annotations

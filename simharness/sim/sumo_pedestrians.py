@@ -42,6 +42,7 @@ class Crosser:
     prev_lat: float = 0.0
     waited: float = 0.0
     go: bool = False
+    home: float | None = None  # pos it meant to cross at (slots shift pos around it)
 
 
 def _opposite(net: Network, cw: Carriageway) -> Carriageway | None:
@@ -169,8 +170,9 @@ class Crossings:
         otherwise wait on each other for ever), so they keep apart by never sharing a line across the road.
         """
         taken = np.array([o.pos for o in self.active if o.cw.edge == c.cw.edge], float)
+        c.home = c.pos if c.home is None else c.home
         for shift in SLOT_SHIFTS:
-            pos = c.pos + shift
+            pos = c.home + shift
             if 0.5 < pos < c.cw.length - 0.5 and not np.any(np.abs(taken - pos) < SLOT):
                 c.pos = pos
                 return True
@@ -238,9 +240,11 @@ class _Gaps:
             s_f, s_r = rel_f @ cw.direction, rel_r @ cw.direction
             lat_f, lat_r = cw.centre_offset - rel_f @ cw.right, cw.centre_offset - rel_r @ cw.right
             lat_lo, lat_hi = np.minimum(lat_f, lat_r), np.maximum(lat_f, lat_r)
+            # A turning body bends along its path: its tail may still lie a full length back along the road.
+            s_lo, s_hi = np.minimum(np.minimum(s_f, s_r), s_f - t.length), np.maximum(s_f, s_r)
             # On this carriageway (or crossing it in the junction): the opposite direction is not a gap.
             on = np.flatnonzero((lat_hi >= -cw.width / 2) & (lat_lo <= cw.width / 2) & self._others)
-            self._frames[cw.edge] = (on, np.minimum(s_f, s_r)[on], np.maximum(s_f, s_r)[on], lat_lo[on], lat_hi[on])
+            self._frames[cw.edge] = (on, s_lo[on], s_hi[on], lat_lo[on], lat_hi[on])
         return self._frames[cw.edge]
 
     def clear(self, cw: Carriageway, pos: float, lat0: float, lat1: float) -> bool:
