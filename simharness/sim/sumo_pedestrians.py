@@ -24,6 +24,7 @@ from simharness.sim.sumo_traffic import Traffic
 
 GAP_TIME = 3.0  # s: a vehicle closer than this (plus a margin) to the next band blocks a step
 MARGIN = 0.4  # m: lateral clearance kept to vehicles when stepping
+TAIL_SLACK = 2.0  # m: extra reach behind a turning vehicle (its body follows a curve; measured 1.3 m short)
 CURB = 0.35  # m: a pedestrian stands this far inside the carriageway edge
 SLOT = 0.6  # m along the road between two crossers on one carriageway (a pedestrian is 0.5 m long)
 SLOT_SHIFTS = (0.0, SLOT, -SLOT, 2 * SLOT, -2 * SLOT)
@@ -240,8 +241,10 @@ class _Gaps:
             s_f, s_r = rel_f @ cw.direction, rel_r @ cw.direction
             lat_f, lat_r = cw.centre_offset - rel_f @ cw.right, cw.centre_offset - rel_r @ cw.right
             lat_lo, lat_hi = np.minimum(lat_f, lat_r), np.maximum(lat_f, lat_r)
-            # A turning body bends along its path: its tail may still lie a full length back along the road.
-            s_lo, s_hi = np.minimum(np.minimum(s_f, s_r), s_f - t.length), np.maximum(s_f, s_r)
+            # A turning body bends along its path: SUMO may put its tail more than a length back along the road.
+            bent = np.abs(lat_f - lat_r) > 0.3
+            s_lo = np.minimum(np.minimum(s_f, s_r), s_f - t.length) - TAIL_SLACK * bent
+            s_hi = np.maximum(s_f, s_r)
             # On this carriageway (or crossing it in the junction): the opposite direction is not a gap.
             on = np.flatnonzero((lat_hi >= -cw.width / 2) & (lat_lo <= cw.width / 2) & self._others)
             self._frames[cw.edge] = (on, s_lo[on], s_hi[on], lat_lo[on], lat_hi[on])
