@@ -19,16 +19,43 @@ def _key(scene_id: str) -> str:
     return hashlib.sha256(scene_id.encode()).hexdigest()
 
 
-def split_scenes(scene_ids: Sequence[str], val: float = 0.15, test: float = 0.15) -> dict[str, list[str]]:
+def resolve_scenes(names: Sequence[str], scene_ids: Sequence[str]) -> list[str]:
+    """Scene names as a user types them -> scene ids: an exact id, else the one id containing the name
+    (case-insensitive), so `hotel` finds `biwi_hotel`. UserError for a name matching none or several."""
+    ids = sorted(set(scene_ids))
+    out = []
+    for name in names:
+        hits = [name] if name in ids else [i for i in ids if name.lower() in i.lower()]
+        if len(hits) != 1:
+            why = "matches no scene" if not hits else f"matches {len(hits)} scenes ({', '.join(hits[:5])})"
+            raise UserError(f"test scene {name!r} {why}; the data set's scenes are {', '.join(ids[:20])}"
+                            + (" ..." if len(ids) > 20 else ""))
+        out.append(hits[0])
+    return sorted(set(out))
+
+
+def split_scenes(scene_ids: Sequence[str], val: float = 0.15, test: float = 0.15,
+                 test_scenes: Sequence[str] | None = None) -> dict[str, list[str]]:
     """Scene ids -> {"train", "val", "test": sorted ids}; each held-out split gets at least one scene.
 
     Scenes are ordered by sha256(scene_id); the first ceil-ish share goes to test, the next to val.
     Needs at least 3 scenes (one per split).
+    test_scenes: held-out scenes by name (leave-one-scene-out, `resolve_scenes`); val is then taken from
+    the others as above, except that a single remaining scene is both train and val (early stopping then
+    selects on training scenes: the only choice when e.g. 2 ETH/UCY scenes are split one against one).
     """
+    if test_scenes:
+        held = resolve_scenes(test_scenes, scene_ids)
+        rest = sorted((i for i in set(scene_ids) if i not in held), key=_key)
+        if not rest:
+            raise UserError(f"test scenes {', '.join(held)} leave no scene to train on")
+        n_val = 0 if len(rest) == 1 else min(len(rest) - 1, max(1, int(round(val * len(set(scene_ids))))))
+        train = sorted(rest[n_val:])
+        return {"test": held, "val": sorted(rest[:n_val]) or train, "train": train}
     ids = sorted(set(scene_ids), key=_key)
     if len(ids) < 3:
         raise UserError(f"a split by scene needs at least 3 scenes, the data set has {len(ids)}; "
-                        "generate more seeds (e.g. --seeds 0-9)")
+                        "generate more seeds (e.g. --seeds 0-9), or hold out named scenes (--test-scenes)")
     n_test = max(1, int(round(test * len(ids))))
     n_val = max(1, int(round(val * len(ids))))
     if n_test + n_val >= len(ids):

@@ -76,7 +76,8 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
           warmup_epochs: int = 2, batch_size: int = 128, lr: float = 1e-3, seed: int = 0,
           max_samples: int | None = None, window: WindowConfig | None = None,
           model_config: dict[str, Any] | None = None, threads: int | None = None,
-          progress: bool = True, max_val_samples: int | None = None) -> dict[str, Any]:
+          progress: bool = True, max_val_samples: int | None = None,
+          test_scenes: list[str] | None = None) -> dict[str, Any]:
     """Train `model` on the train split of `data`, keep the best on the val split -> summary dict.
 
     Writes out/model.pt, out/config.json, out/log.csv. Returns {"best_epoch", "best_val", "val_history",
@@ -98,7 +99,7 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
     window = window or WindowConfig()
     key, ids, scenes_fn = open_data(data)
     store = FeatureStore.cached(Path(data) / CACHE_DIR, key, window, scenes_fn, progress=progress)
-    split = split_scenes(ids)
+    split = split_scenes(ids, test_scenes=test_scenes)  # test_scenes: leave-one-scene-out by name
     train_idx, val_idx = store.samples_of(split["train"]), store.samples_of(split["val"])
     if max_samples is not None and len(train_idx) > max_samples:
         train_idx = np.sort(rng.choice(train_idx, max_samples, replace=False))
@@ -179,9 +180,21 @@ def train_command(args: argparse.Namespace) -> int:
     """`simharness train --data DIR --model NAME --out RUN [...]`."""
     res = train(args.data, model=args.model, out=args.out, epochs=args.epochs, warmup_epochs=args.warmup_epochs,
                 batch_size=args.batch_size, lr=args.lr, seed=args.seed, max_samples=args.max_samples,
-                max_val_samples=VAL_SAMPLES)
+                max_val_samples=VAL_SAMPLES, test_scenes=getattr(args, "test_scenes", None),
+                window=_protocol_window(getattr(args, "protocol", None)))
+    if set(res["config"]["split"]["val"]) & set(res["config"]["split"]["train"]):
+        print(f"note: one scene left to train on, so validation (checkpoint choice) used the training scene(s) "
+              f"{', '.join(res['config']['split']['train'])}")
     kind = "nll" if res["best_epoch"] > args.warmup_epochs else "mse"
     print(f"{args.model}: best epoch {res['best_epoch']} (val {kind} {res['best_val']:.3f}), "
           f"{res['train_samples']} training windows, {res['samples_per_s']:.0f} samples/s -> {args.out}")
     return 0
 
+
+def _protocol_window(protocol: str | None) -> WindowConfig | None:
+    """`--protocol NAME`: training windows of that evaluation protocol's length and rate (None: the default)."""
+    if protocol is None:
+        return None
+    from simharness.protocols import get_protocol, window_seconds
+
+    return WindowConfig(**window_seconds(get_protocol(protocol)))

@@ -42,6 +42,14 @@ def parse_set(text: str) -> tuple[str, list[str]]:
     return key.strip(), [v.strip() for v in values.split(",") if v.strip()]
 
 
+def parse_names(text: str) -> list[str]:
+    """"hotel" or "TRAF11,TRAF12" -> ["hotel"] / ["TRAF11", "TRAF12"]."""
+    names = [v.strip() for v in text.split(",") if v.strip()]
+    if not names:
+        raise argparse.ArgumentTypeError(f"bad scene list {text!r}; expected e.g. hotel or zara01,hotel")
+    return names
+
+
 def _call(target: str) -> Callable[[argparse.Namespace], int | None]:
     """Lazy 'module:function' so that `simharness --help` does not import torch or SUMO."""
     module, func = target.split(":")
@@ -89,6 +97,11 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--lr", type=float, default=1e-3)
     t.add_argument("--seed", type=int, default=0)
     t.add_argument("--max-samples", type=int, default=None, help="cap training windows (quick runs)")
+    t.add_argument("--test-scenes", type=parse_names, default=None,
+                   help="hold these scenes out (leave-one-scene-out), e.g. hotel; default: a split by scene hash")
+    t.add_argument("--protocol", default=None,
+                   help="train on this evaluation protocol's windows (eth-ucy: 8 + 12 frames at 2.5 Hz); "
+                        "default 3 s + 5 s at 5 Hz")
 
     e = cmd("evaluate", "simharness.evaluation:evaluate_command", "score a predictor open-loop on a data set")
     e.add_argument("--data", type=Path, required=True)
@@ -96,6 +109,8 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--out", type=Path, default=None, help="folder for metrics.json and figures")
     e.add_argument("--protocol", default="traphic", help="traphic (3 s / 5 s) or eth-ucy (8 / 12 frames)")
     e.add_argument("--split", default="test", choices=["test", "all"], help="held-out scenes or every scene")
+    e.add_argument("--test-scenes", type=parse_names, default=None,
+                   help="the scenes held out in training (leave-one-scene-out), e.g. hotel")
 
     c = sub.add_parser("closedloop", parents=[executor_args], help="drive an ego on a predictor's forecasts")
     c.set_defaults(func=_call("simharness.closedloop:closedloop_command"))

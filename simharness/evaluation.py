@@ -32,8 +32,12 @@ def _local_counts(scene: Scene, now: int, rows: np.ndarray, radius: float) -> np
 
 
 def evaluate(data: Path, predictor: Predictor, protocol: EvalProtocol | str = "traphic", split: str = "test",
-             figure_dir: Path | None = None, progress: bool = True, name: str = "") -> dict[str, Any]:
+             figure_dir: Path | None = None, progress: bool = True, name: str = "",
+             test_scenes: list[str] | None = None) -> dict[str, Any]:
     """Score `predictor` on the `split` scenes ("test": the held-out scenes of training; "all") -> metrics dict.
+
+    test_scenes: the scenes held out by name (leave-one-scene-out, as in `simharness train --test-scenes`);
+    with split "test" they are the scenes scored.
 
     Keys: ade, fde (mean Euclidean), ade_rmse, fde_rmse, rmse_per_second (list), nll (or None when the
     predictor gives no uncertainty), miss_rate_2m, min_ade/min_fde (sampled forecasts only), samples,
@@ -47,8 +51,10 @@ def evaluate(data: Path, predictor: Predictor, protocol: EvalProtocol | str = "t
     protocol = get_protocol(protocol) if isinstance(protocol, str) else protocol
     ds = Dataset(Path(data))
     if split == "test":
-        chosen = split_scenes(ds.scene_ids)["test"]
+        chosen = split_scenes(list(ds.scene_ids), test_scenes=test_scenes)["test"]
     elif split == "all":
+        if test_scenes:
+            raise UserError("--test-scenes names the held-out scenes of --split test, not of --split all")
         chosen = list(ds.scene_ids)
     else:
         raise UserError(f"unknown split {split!r}; expected test or all")
@@ -86,7 +92,8 @@ def evaluate(data: Path, predictor: Predictor, protocol: EvalProtocol | str = "t
     pred, truth, valid = np.concatenate(preds), np.concatenate(truths), np.concatenate(valids)
     agent_type, count = np.concatenate(types), np.concatenate(counts)
     out: dict[str, Any] = {"predictor": name, "protocol": dataclasses_dict(protocol), "split": split,
-                           "scenes": len(chosen), "units": units, **dm.summary(pred, truth, valid)}
+                           "scenes": len(chosen), "scene_ids": list(chosen), "units": units,
+                           **dm.summary(pred, truth, valid)}
     out["rmse_per_second"] = [float(v) for v in dm.rmse_per_second(pred, truth, valid, step_dt)]
     # 2 m in the scene's units; pixel data without a scale gets no miss rate rather than a wrong one.
     out["miss_rate_2m"] = dm.miss_rate(pred, truth, valid, 2.0 * scale) if units == "m" or has_scale else None
@@ -148,7 +155,8 @@ def evaluate_command(args: argparse.Namespace) -> int:
     predictor = load_predictor(args.model)
     name = Path(str(args.model)).name
     out_dir = Path(args.out) if args.out is not None else Path("runs/evaluate") / name
-    res = evaluate(args.data, predictor, get_protocol(args.protocol), split=args.split, figure_dir=out_dir, name=name)
+    res = evaluate(args.data, predictor, get_protocol(args.protocol), split=args.split, figure_dir=out_dir, name=name,
+                   test_scenes=getattr(args, "test_scenes", None))
     out_dir.mkdir(parents=True, exist_ok=True)
     tmp = out_dir / f".metrics.json.tmp{os.getpid()}"
     tmp.write_text(json.dumps(res, indent=1) + "\n", encoding="utf-8")

@@ -62,8 +62,9 @@ def load_predictor(name_or_run: str | Path) -> Predictor:
                     "written by `simharness train`")
 
 
-def split_scenes(scene_ids: list[str]) -> dict[str, list[str]]:
-    """The train/val/test split by scene that training used (re-exported for evaluation)."""
+def split_scenes(scene_ids: list[str], test_scenes: list[str] | None = None) -> dict[str, list[str]]:
+    """The train/val/test split by scene that training used (re-exported for evaluation); test_scenes: the
+    scenes held out by name (leave-one-scene-out), as given to `simharness train --test-scenes`."""
     from predictor.split import split_scenes as split
 
-    return split(scene_ids)
+    return split(scene_ids, test_scenes=test_scenes)

@@ -104,3 +104,13 @@ def history_and_truth(scene: Scene, now: int, protocol: EvalProtocol) -> tuple[S
     fut = now + np.arange(1, protocol.future + 1) * step
     f = np.minimum(fut, scene.num_frames - 1)
     return hist, scene.xy[:, f], scene.valid[:, f] & (fut < scene.num_frames)[None]
+
+
+def window_seconds(protocol: EvalProtocol) -> dict[str, float]:
+    """The protocol's windows in seconds, as a predictor's training windows take them:
+    {"history_s", "future_s", "hz"} (eth-ucy: 3.2 s of 8 frames + 4.8 s of 12 frames at 2.5 Hz)."""
+    if protocol.downsample is not None or not protocol.hz:
+        raise UserError(f"protocol {protocol.name!r} is defined in recorded frames (downsample "
+                        f"{protocol.downsample}), not seconds; train with a window config instead")
+    return {"history_s": protocol.history / protocol.hz, "future_s": protocol.future / protocol.hz,
+            "hz": float(protocol.hz)}

@@ -304,6 +304,20 @@ TRAF_CLASSES: dict[str, AgentType] = {
     "others": AgentType.OTHER, "other": AgentType.OTHER, "animal": AgentType.OTHER,
 }
 TRAF_UNLABELLED = {"null", "none", ""}
+# A rough length scale for pixel data (TraPHic's ellipses and grids are in metres): a car's image box is
+# about as wide as the car, seen from behind in these front-view videos; 1.7 m is a typical small car.
+TRAF_CAR_WIDTH_M = 1.7
+TRAF_SCALE_NOTE = ("units_per_m: median over cars of their median image-box width (px) / 1.7 m, a typical "
+                   "car width seen from behind; one depth-averaged scale per video, not a homography (none is "
+                   "published): it sizes interaction regions only, metrics stay in pixels")
+
+
+def traf_pixels_per_metre(scene: Scene) -> float | None:
+    """Estimated pixels per metre of a TRAF video (see `TRAF_SCALE_NOTE`); None when it has no cars.
+
+    scene.length holds each agent's median image-box width in pixels."""
+    cars = scene.agent_type == AgentType.CAR
+    return round(float(np.median(scene.length[cars])) / TRAF_CAR_WIDTH_M, 2) if cars.any() else None
 
 
 def traf_class(agent_id: str) -> AgentType | None:
@@ -357,6 +371,9 @@ def import_traf(paths: Sequence[PathLike]) -> list[Scene]:
     (`meta["dropped_duplicates"]`, 27 in TRAF12); unknown classes become OTHER, counted in
     `meta["unknown_classes"]`. length, width: the median box width and height (pixels, the image
     box, not a ground footprint); the box per frame is kept in `extra["box_w"]`, `extra["box_h"]`.
+    `meta["units_per_m"]`: a rough pixels-per-metre estimate from the cars' boxes (`traf_pixels_per_metre`),
+    so that predictors with regions in metres can size them; errors stay in pixels (evaluation uses it only
+    for thresholds: the 2 m miss distance and the density radius).
     """
     scenes = []
     for p in paths:
@@ -373,11 +390,14 @@ def import_traf(paths: Sequence[PathLike]) -> list[Scene]:
         meta = _source_meta(path, "traf", path.stem, units="px", image_size=list(TRAF_IMAGE_SIZE),
                             axes="image pixels: x right, y down", dropped_unlabelled=dropped,
                             unknown_classes=unknown)
-        scenes.append(scene_from_rows(
+        scene = scene_from_rows(
             frame, ids, centre, dt=TRAF_DT, agent_type=codes[inverse], size=box[:, 2:4],
             extra={"box_w": box[:, 2], "box_h": box[:, 3]}, where=_where(path, lines), meta=meta,
             duplicates="first",
-        ))
+        )
+        scale = traf_pixels_per_metre(scene)
+        scenes.append(scene if scale is None else
+                      scene.replace(meta={**scene.meta, "units_per_m": scale, "units_per_m_note": TRAF_SCALE_NOTE}))
     return scenes
 
 
