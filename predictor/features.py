@@ -23,10 +23,7 @@ numpy gathers.
 from __future__ import annotations
 
 import dataclasses
-import hashlib
-import json
 import math
-import os
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -36,7 +33,7 @@ import numpy as np
 from simharness.errors import UserError
 from simharness.scene import AgentType, Scene
 
-FEATURES_VERSION = 1
+FEATURES_VERSION = 2  # the layout of windows and their cache
 TYPE_NAMES = tuple(f"type_{t.label}" for t in AgentType)
 FEATURES: tuple[str, ...] = ("x", "y", "vx", "vy", "concentration", "length", "width", *TYPE_NAMES,
                              "present", "rel_vx", "rel_vy", "distance")
@@ -197,21 +194,61 @@ def frame_headings(scene: Scene, scale: float, cfg: WindowConfig) -> np.ndarray:
     return np.where(moving, np.arctan2(disp[..., 1], disp[..., 0]), scene.heading).astype(np.float32)
 
 
+def frame_concentration(xy: np.ndarray, heading: np.ndarray, valid: np.ndarray, cols: np.ndarray,
+                        box: tuple[float, float], max_pairs: int = 1 << 21) -> np.ndarray:
+    """`concentration` at frames `cols` of a scene, frames in chunks rather than one by one.
+
+    xy (N, T, 2) metres, heading, valid (N, T), cols (C,) -> (N, T) float32 counts (zero off `cols` and where
+    invalid). Each frame's present agents are packed first and padded to the chunk's largest count.
+    """
+    n, t = valid.shape
+    out = np.zeros((n, t), np.float32)
+    cols = np.asarray(cols, np.int64)
+    if cols.size == 0 or n == 0:
+        return out
+    counts = valid[:, cols].sum(0)
+    # Present rows first in each column (stable: by row), so a frame's agents are rows[:count].
+    order = np.argsort(~valid[:, cols], axis=0, kind="stable")
+    start = 0
+    while start < cols.size:
+        stop = start + 1  # grow the chunk while its padded pair count stays under max_pairs
+        while stop < cols.size and counts[start:stop + 1].max() ** 2 * (stop + 1 - start) <= max_pairs:
+            stop += 1
+        k = int(counts[start:stop].max())
+        if k:
+            c = cols[start:stop]
+            rows = order[:k, start:stop]  # (k, C)
+            ok = np.arange(k)[:, None] < counts[start:stop]
+            p, h = xy[rows, c], heading[rows, c]  # (k, C, 2), (k, C)
+            rel = to_local(p[None], p[:, None], h[:, None])  # (k, k, C, 2): j in i's frame
+            inside = (rel[..., 0] > 0) & (rel[..., 0] <= box[0]) & (np.abs(rel[..., 1]) <= box[1] / 2) & ok[None]
+            cc = np.broadcast_to(c, rows.shape)
+            out[rows[ok], cc[ok]] = inside.sum(1)[ok]
+        start = stop
+    return out
+
+
 def scene_arrays(scene: Scene, cfg: WindowConfig, frames: np.ndarray | None = None) -> dict[str, np.ndarray]:
     """Per-agent-frame arrays of one scene in metres: xy, vel (N, T, 2); heading, conc (N, T); valid (N, T);
     length, width, type (N,). Concentration is computed at `frames` columns only (all if None)."""
     scale = cfg.scale_for(scene)
-    xy = (scene.xy / scale).astype(np.float32)
-    heading = frame_headings(scene, scale, cfg)
-    conc = np.zeros(scene.valid.shape, np.float32)
-    cols = range(scene.num_frames) if frames is None else frames
-    for t in cols:  # per frame; all agents of the frame at once
-        rows = np.flatnonzero(scene.valid[:, t])
-        if rows.size:
-            conc[rows, t] = concentration(xy[rows, t], heading[rows, t], cfg.concentration_box)
-    return {"xy": xy, "vel": (scene.velocity / scale).astype(np.float32), "heading": heading, "conc": conc,
-            "valid": scene.valid.copy(), "length": scene.length / scale, "width": scene.width / scale,
-            "type": scene.agent_type.astype(np.int8)}
+    valid = scene.valid.copy()
+    # Zero where invalid: whatever a scene holds there never reaches a feature, and the cache stores valid entries only.
+    xy = np.where(valid[..., None], scene.xy / scale, 0).astype(np.float32)
+    heading = np.where(valid, frame_headings(scene, scale, cfg), 0).astype(np.float32)
+    cols = np.arange(scene.num_frames) if frames is None else np.asarray(frames, np.int64)
+    conc = frame_concentration(xy, heading, valid, cols, cfg.concentration_box)
+    return {"xy": xy, "vel": np.where(valid[..., None], scene.velocity / scale, 0).astype(np.float32),
+            "heading": heading, "conc": conc, "valid": valid, "length": (scene.length / scale).astype(np.float32),
+            "width": (scene.width / scale).astype(np.float32), "type": scene.agent_type.astype(np.int8)}
+
+
+def index_dtype(size: int) -> type:
+    """The smallest signed integer type that holds -1 .. size (compact indices)."""
+    for dt in (np.int8, np.int16, np.int32):
+        if size < np.iinfo(dt).max:
+            return dt
+    return np.int64
 
 
 # ---------------------------------------------------------------------------- the store
@@ -248,27 +285,30 @@ class Batch:
                 for k in ("hist", "nbr", "nbr_cell", "hz", "hz_cell", "fut", "fut_valid")}
 
 
-_AF_KEYS = ("xy", "vel", "heading", "conc", "valid", "length", "width", "type")
-_INDEX_KEYS = ("sample_scene", "target", "nbr", "nbr_cell", "hz", "hz_cell")
+AF_KEYS = ("xy", "vel", "heading", "conc", "valid", "length", "width", "type")
+INDEX_KEYS = ("sample_scene", "target", "nbr", "nbr_cell", "hz", "hz_cell")
 
 
 class FeatureStore:
     """All agent-frames of some scenes as flat arrays, plus the sample index (one sample = target at a "now").
 
     Agent-frame a of scene s, row r, column t sits at base[s] + r * T_s + t, so the same agent `k` steps
-    back is `a - k * step`. Arrays (A = all agent-frames): xy, vel (A, 2); heading, conc (A,); valid (A,);
-    length, width, type (A,). Index (S samples): sample_scene (S,), target (S,) agent-frame at now,
-    nbr / hz (S, K) agent-frames of the selected agents at now (-1 none), nbr_cell / hz_cell (S, K).
+    back is `a - k * step`. Arrays (A = all agent-frames): xy, vel (A, 2) float32; heading, conc (A,) float32;
+    valid (A,) bool; length, width (A,) float32; type (A,) int8. Index (S samples): sample_scene (S,) int32,
+    target (S,) agent-frame at now, nbr / hz (S, K) agent-frames of the selected agents at now (-1 none),
+    nbr_cell / hz_cell (S, K) grid cells (-1 none); indices in the smallest integer type that holds them
+    (`index_dtype`). shapes (scenes, 2): (agents, frames) of each scene, the layout of the agent-frames.
     """
 
     def __init__(self, arrays: dict[str, np.ndarray], cfg: WindowConfig, step: int, frames: tuple[int, int],
-                 scene_ids: list[str], has_future: bool = True):
+                 scene_ids: list[str], has_future: bool = True, shapes: np.ndarray | None = None):
         self.a = arrays
         self.cfg = cfg
         self.step = step
         self.H, self.F = frames
         self.scene_ids = scene_ids
         self.has_future = has_future
+        self.shapes = shapes
 
     # -------------------------------------------------------------- building
     @staticmethod
@@ -287,7 +327,8 @@ class FeatureStore:
         dt = scenes[0].dt
         step = cfg.step(dt)
         H, F = cfg.frames(dt)
-        parts: dict[str, list[np.ndarray]] = {k: [] for k in (*_AF_KEYS, *_INDEX_KEYS)}
+        parts: dict[str, list[np.ndarray]] = {k: [] for k in (*AF_KEYS, *INDEX_KEYS)}
+        shapes = []
         base = 0
         it = enumerate(scenes)
         if progress:
@@ -301,6 +342,7 @@ class FeatureStore:
             if not require_future:  # pad history on the left so partial histories index safely
                 scene = _pad_left(scene, pad)
             n, t = scene.valid.shape
+            shapes.append((n, t))
             if targets is None:
                 nows = np.arange(pad, t - F * step, max(1, cfg.stride))
                 offs = np.arange(-(H - 1), F + 1) * step
@@ -312,12 +354,12 @@ class FeatureStore:
             keep = [w for w in range(nows.size) if tgt_rows[w].size]
             hist_cols = np.unique((nows[keep, None] + np.arange(-(H - 1), 1) * step).ravel()) if keep else None
             arr = scene_arrays(scene, cfg, frames=hist_cols if hist_cols is not None else np.zeros(0, int))
-            for k in _AF_KEYS:
+            for k in AF_KEYS:
                 v = arr[k]
                 if v.ndim == 1:
                     v = np.repeat(v[:, None], t, 1)
                 parts[k].append(v.reshape(n * t, *v.shape[2:]))
-            for w in keep:
+            for w in keep:  # one "now" at a time: all its targets' neighbourhoods at once
                 now, rows = int(nows[w]), tgt_rows[w]
                 present = np.flatnonzero(scene.valid[:, now])
                 sel = select_neighbours(arr["xy"][present, now], arr["heading"][present, now], cfg)
@@ -330,49 +372,38 @@ class FeatureStore:
                 parts["sample_scene"].append(np.full(rows.size, s, np.int32))
             base += n * t
         arrays = {k: np.concatenate(v) if v else np.zeros(0) for k, v in parts.items()}
-        kn, kh = cfg.max_neighbours, cfg.max_horizon
-        for key, k, dtype in (("nbr", kn, np.int64), ("nbr_cell", kn, np.int64), ("hz", kh, np.int64),
-                              ("hz_cell", kh, np.int64)):
-            arrays[key] = arrays[key].reshape(-1, k).astype(dtype)
-        arrays["target"] = arrays["target"].astype(np.int64)
+        af_type = index_dtype(base)
+        for key, k, grid in (("nbr", cfg.max_neighbours, cfg.neighbour_grid),
+                             ("hz", cfg.max_horizon, cfg.horizon_grid)):
+            arrays[key] = arrays[key].reshape(-1, k).astype(af_type)
+            arrays[key + "_cell"] = arrays[key + "_cell"].reshape(-1, k).astype(index_dtype(grid[0] * grid[1]))
+        arrays["target"] = arrays["target"].astype(af_type)
         arrays["sample_scene"] = arrays["sample_scene"].astype(np.int32)
-        return FeatureStore(arrays, cfg, step, (H, F), list(scene_ids), has_future=require_future)
+        return FeatureStore(arrays, cfg, step, (H, F), list(scene_ids), has_future=require_future,
+                            shapes=np.array(shapes, np.int64).reshape(-1, 2))
 
-    # -------------------------------------------------------------- caching
+    # -------------------------------------------------------------- caching (predictor.windows_cache)
     def save(self, path: Path) -> None:
-        """Atomic .npz write (tmp + rename)."""
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(path.name + f".tmp{os.getpid()}.npz")
-        np.savez(tmp, **self.a, meta=np.array(json.dumps({
-            "cfg": self.cfg.to_dict(), "step": self.step, "H": self.H, "F": self.F, "scene_ids": self.scene_ids})))
-        os.replace(tmp, path)
+        """Atomic write of the compact on-disk form."""
+        from predictor.windows_cache import save_store
+
+        save_store(self, Path(path))
 
     @staticmethod
     def load(path: Path) -> FeatureStore:
-        with np.load(path, allow_pickle=False) as z:
-            arrays = {k: z[k] for k in z.files if k != "meta"}
-            meta = json.loads(str(z["meta"]))
-        return FeatureStore(arrays, WindowConfig.from_dict(meta["cfg"]), meta["step"], (meta["H"], meta["F"]),
-                            meta["scene_ids"])
+        """A store written by `save`; UserError if it is damaged or inconsistent."""
+        from predictor.windows_cache import load_store
+
+        return load_store(Path(path))
 
     @staticmethod
     def cached(cache_dir: Path, data_key: str, cfg: WindowConfig, scenes_fn: Any,
                progress: bool = True) -> FeatureStore:
-        """Load the store for (data_key, cfg) from cache_dir, or build it with scenes_fn() -> (scenes, ids) and save."""
-        key = hashlib.sha256(json.dumps([FEATURES_VERSION, data_key, cfg.to_dict()], sort_keys=True).encode())
-        path = Path(cache_dir) / f"windows-{key.hexdigest()[:16]}.npz"
-        if path.exists():
-            try:
-                return FeatureStore.load(path)
-            except Exception:  # a stale or damaged cache is rebuilt, never trusted
-                path.unlink(missing_ok=True)
-        scenes, ids = scenes_fn()
-        store = FeatureStore.build(scenes, ids, cfg, progress=progress)
-        try:
-            store.save(path)
-        except OSError:  # a read-only data folder: work without the cache
-            pass
-        return store
+        """Load the store for (data_key, cfg, this code) from cache_dir, or build it with scenes_fn() -> (scenes, ids)
+        and save it; a damaged or stale file is rebuilt, never trusted."""
+        from predictor.windows_cache import cached_store
+
+        return cached_store(Path(cache_dir), data_key, cfg, scenes_fn, progress)
 
     # -------------------------------------------------------------- access
     def __len__(self) -> int:
@@ -383,38 +414,49 @@ class FeatureStore:
         wanted = np.isin(np.asarray(self.scene_ids), list(scene_ids))
         return np.flatnonzero(wanted[self.a["sample_scene"]])
 
+    def _table(self) -> np.ndarray:
+        """(A, 8) float32 per agent-frame: x, y, vx, vy, concentration, length, width, type; one gather per
+        slot instead of seven (np.take on rows of one table is many times faster than fancy indexing)."""
+        if getattr(self, "_af_table", None) is None:
+            a = self.a
+            self._af_table = np.concatenate([a["xy"], a["vel"], a["conc"][:, None], a["length"][:, None],
+                                             a["width"][:, None], a["type"][:, None]], 1, dtype=np.float32)
+        return self._af_table
+
     def batch(self, idx: np.ndarray) -> Batch:
-        """Gather samples idx (B,) into a Batch (vectorised; no per-sample Python)."""
+        """Gather samples idx (B,) into a Batch: target, neighbours and horizon agents in one pass of numpy
+        gathers (no per-sample Python)."""
         a, step, H, F = self.a, self.step, self.H, self.F
-        tgt = self.a["target"][idx]
-        hist_idx = tgt[:, None] + np.arange(-(H - 1), 1) * step  # (B, H)
-        origin, heading = a["xy"][tgt], a["heading"][tgt]
-        tvel = rotate_to_local(a["vel"][hist_idx], heading[:, None])  # (B, H, 2)
-        txy = to_local(a["xy"][hist_idx], origin[:, None], heading[:, None])
-
-        def omega(rows: np.ndarray) -> np.ndarray:  # rows (B, K) agent-frames at now, -1 none -> (B, K, H, D)
-            have = rows >= 0
-            af = np.maximum(rows, 0)[..., None] + np.arange(-(H - 1), 1) * step  # (B, K, H)
-            present = have[..., None] & a["valid"][af]
-            o, th = origin[:, None, None], heading[:, None, None]
-            pos = to_local(a["xy"][af], o, th)
-            vel = rotate_to_local(a["vel"][af], th)
-            rel_v = vel - tvel[:, None]
-            dist = np.linalg.norm(pos - txy[:, None], axis=-1)
-            onehot = np.eye(len(AgentType), dtype=np.float32)[a["type"][af]]
-            feats = np.concatenate([pos, vel, a["conc"][af][..., None], a["length"][af][..., None],
-                                    a["width"][af][..., None], onehot, np.ones_like(dist)[..., None],
-                                    rel_v, dist[..., None]], -1).astype(np.float32)
-            return feats * present[..., None]
-
-        hist = omega(tgt[:, None])[:, 0]
+        idx = np.asarray(idx)
+        kn, nt = a["nbr"].shape[1], len(AgentType)
+        tgt = np.take(a["target"], idx).astype(np.int64)
+        slots = np.concatenate([tgt[:, None], np.take(a["nbr"], idx, 0), np.take(a["hz"], idx, 0)], 1)  # (B, S)
+        af = np.maximum(slots, 0).astype(np.int64)[..., None] + np.arange(-(H - 1), 1) * step  # (B, S, H)
+        present = (slots >= 0)[..., None] & np.take(a["valid"], af)
+        g = np.take(self._table(), af, 0)  # (B, S, H, 8)
+        origin, heading = np.take(a["xy"], tgt, 0), np.take(a["heading"], tgt)
+        c, s = np.cos(heading)[:, None, None], np.sin(heading)[:, None, None]
+        dx, dy = g[..., 0] - origin[:, None, None, 0], g[..., 1] - origin[:, None, None, 1]
+        om = np.empty((*af.shape, NUM_FEATURES), np.float32)  # Omega of every slot; slot 0 is the target
+        om[..., 0] = c * dx + s * dy
+        om[..., 1] = -s * dx + c * dy
+        om[..., 2] = c * g[..., 2] + s * g[..., 3]
+        om[..., 3] = -s * g[..., 2] + c * g[..., 3]
+        om[..., 4:7] = g[..., 4:7]
+        om[..., 7:7 + nt] = g[..., 7:8] == np.arange(nt, dtype=np.float32)
+        om[..., _PRESENT] = 1.0
+        om[..., _PRESENT + 1:_PRESENT + 3] = om[..., 2:4] - om[:, :1, :, 2:4]  # relative to the target's velocity
+        dx, dy = om[..., 0] - om[:, :1, :, 0], om[..., 1] - om[:, :1, :, 1]
+        om[..., _PRESENT + 3] = np.sqrt(dx * dx + dy * dy)  # distance to the target at the same step
+        om *= present[..., None]
         fut_idx = np.minimum(tgt[:, None] + np.arange(1, F + 1) * step, len(a["valid"]) - 1)
         # Inference stores end at "now": their future would index the next agent's row.
-        fut_valid = a["valid"][fut_idx] & self.has_future
-        fut = to_local(a["xy"][fut_idx], origin[:, None], heading[:, None]) * fut_valid[..., None]
-        return Batch(hist=hist, nbr=omega(a["nbr"][idx]), nbr_cell=a["nbr_cell"][idx], hz=omega(a["hz"][idx]),
-                     hz_cell=a["hz_cell"][idx], fut=fut.astype(np.float32), fut_valid=fut_valid,
-                     origin=origin, heading=heading, agent_type=a["type"][tgt])
+        fut_valid = np.take(a["valid"], fut_idx) & self.has_future
+        fut = to_local(np.take(a["xy"], fut_idx, 0), origin[:, None], heading[:, None]) * fut_valid[..., None]
+        return Batch(hist=om[:, 0], nbr=om[:, 1:1 + kn], nbr_cell=np.take(a["nbr_cell"], idx, 0).astype(np.int64),
+                     hz=om[:, 1 + kn:], hz_cell=np.take(a["hz_cell"], idx, 0).astype(np.int64),
+                     fut=fut.astype(np.float32), fut_valid=fut_valid, origin=origin, heading=heading,
+                     agent_type=np.take(a["type"], tgt))
 
 
 def _pad_left(scene: Scene, pad: int) -> Scene:

@@ -49,10 +49,11 @@ class ModelPredictor:
             raise ValueError(f"targets {history.agent_id[absent][:5].tolist()} are not present at the last frame")
         store = FeatureStore.build([history], ["history"], self.window, targets=[targets], require_future=False)
         batch = store.batch(np.arange(len(targets)))
-        with torch.no_grad():
-            out = self.model(batch.tensors()).numpy().astype(np.float64)  # (M, F, 5) local, metres
+        inputs = batch.tensors()
+        with torch.inference_mode():  # no autograd records, and oneDNN's inference kernels for the LSTMs
+            out = self.model(inputs).numpy().astype(np.float64)  # (M, F, 5) local, metres
             # Sampling models (Social-GAN) also give K futures (M, K, F, 2): Forecast.modes, for best-of-K scores.
-            samples = self.model.sample(batch.tensors()).numpy().astype(np.float64) if hasattr(
+            samples = self.model.sample(inputs).numpy().astype(np.float64) if hasattr(
                 self.model, "sample") else None
         step, fm = store.step, out.shape[1]
         if horizon > fm * step:

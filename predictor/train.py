@@ -26,7 +26,6 @@ from predictor.split import split_scenes
 from simharness.errors import UserError
 from simharness.scene import Scene
 
-CACHE_DIR = ".windows"  # inside the data set folder: the cached sample index per window config
 VAL_SAMPLES = 4000  # validation windows scored each epoch by the CLI (a fixed, seeded subset)
 
 
@@ -36,7 +35,8 @@ def open_data(data: Path) -> tuple[str, list[str], Any]:
     from simharness.io.parquet import Dataset
 
     ds = Dataset(Path(data))
-    key = str(ds.manifest.get("content_hash") or ds.scene_ids)
+    key = ds.manifest.get("content_hash") or hashlib.sha256(
+        json.dumps(ds.manifest.get("scenes", []), sort_keys=True).encode()).hexdigest()
 
     def scenes_fn() -> tuple[list[Scene], list[str]]:
         scenes = [ds.scene(i) for i in range(len(ds))]
@@ -46,10 +46,15 @@ def open_data(data: Path) -> tuple[str, list[str], Any]:
     return key, list(ds.scene_ids), scenes_fn
 
 
-def load_windows(data: Path, window: WindowConfig, progress: bool = True) -> FeatureStore:
-    """The cached FeatureStore of a data set (built on first use)."""
+def load_windows(data: Path, window: WindowConfig, progress: bool = True,
+                 cache_dir: Path | None = None) -> FeatureStore:
+    """The cached FeatureStore of a data set (built on first use; cache in `cache_dir`, by default
+    `predictor.windows_cache.default_cache_dir()`, outside the data set folder)."""
+    from predictor.windows_cache import default_cache_dir
+
     key, _, scenes_fn = open_data(data)
-    return FeatureStore.cached(Path(data) / CACHE_DIR, key, window, scenes_fn, progress=progress)
+    return FeatureStore.cached(Path(cache_dir) if cache_dir else default_cache_dir(), str(key), window, scenes_fn,
+                               progress=progress)
 
 
 def _epoch_eval(model: Any, store: FeatureStore, idx: np.ndarray, batch_size: int) -> dict[str, float]:
@@ -77,7 +82,7 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
           max_samples: int | None = None, window: WindowConfig | None = None,
           model_config: dict[str, Any] | None = None, threads: int | None = None,
           progress: bool = True, max_val_samples: int | None = None,
-          test_scenes: list[str] | None = None) -> dict[str, Any]:
+          test_scenes: list[str] | None = None, cache_dir: Path | None = None) -> dict[str, Any]:
     """Train `model` on the train split of `data`, keep the best on the val split -> summary dict.
 
     Writes out/model.pt, out/config.json, out/log.csv. Returns {"best_epoch", "best_val", "val_history",
@@ -97,8 +102,8 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
     window = window or WindowConfig()
-    key, ids, scenes_fn = open_data(data)
-    store = FeatureStore.cached(Path(data) / CACHE_DIR, key, window, scenes_fn, progress=progress)
+    key, ids, _ = open_data(data)
+    store = load_windows(data, window, progress=progress, cache_dir=cache_dir)
     split = split_scenes(ids, test_scenes=test_scenes)  # test_scenes: leave-one-scene-out by name
     train_idx, val_idx = store.samples_of(split["train"]), store.samples_of(split["val"])
     if max_samples is not None and len(train_idx) > max_samples:
@@ -112,7 +117,7 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
             "max_horizon": window.max_horizon, "neighbour_grid": window.neighbour_grid,
             "horizon_grid": window.horizon_grid, **(model_config or {})}
     net = build_model(model, mcfg)
-    opt = torch.optim.Adam(net.parameters(), lr=lr)
+    opt = torch.optim.Adam(net.parameters(), lr=lr, fused=True)  # one kernel for all parameters
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     config = {"model": model, "model_config": net.cfg.to_dict(), "window": window.to_dict(),
@@ -150,7 +155,7 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
                 opt.zero_grad()
                 loss.backward()
                 opt.step()
-            tot += loss.item()
+            tot += float(loss.detach())
             nb += 1
             if nb % 20 == 0:
                 bar.set_postfix(loss=f"{tot / nb:.3f}")

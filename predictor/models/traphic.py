@@ -32,6 +32,7 @@ from torch import nn
 from torch.nn import functional as fn
 
 from predictor.features import FEATURES, HOMOGENEOUS_FEATURES, NUM_FEATURES
+from predictor.models.lstm import constant_input_lstm
 
 # Fixed input scales (metres, m/s, counts) so every feature is of order one.
 _SCALE = {"x": 10.0, "y": 10.0, "vx": 10.0, "vy": 10.0, "concentration": 5.0, "length": 5.0, "width": 5.0,
@@ -99,43 +100,63 @@ class TraPHic(nn.Module):
         self.decoder = nn.LSTM(z, cfg.decoder, batch_first=True)
         self.out = nn.Linear(cfg.decoder, 5)
 
+    def _embed_weight(self, enc: nn.ModuleDict) -> torch.Tensor:
+        """The embedding's weight over all NUM_FEATURES inputs with the input scales folded in (E, NUM_FEATURES):
+        the ablation's unused features get zero columns, so Omega is read as is, without a copy."""
+        w = enc["embed"].weight * self.inv_scale
+        if w.shape[1] == NUM_FEATURES:
+            return w
+        return w.new_zeros(w.shape[0], NUM_FEATURES).index_copy(1, self.cols, w)
+
     def _encode(self, enc: nn.ModuleDict, omega: torch.Tensor) -> torch.Tensor:
         """omega (M, H, D) -> (M, encoder) last hidden state."""
-        x = omega.index_select(-1, self.cols) * self.inv_scale
-        _, (h, _) = enc["lstm"](fn.elu(enc["embed"](x)))
+        x = fn.elu(fn.linear(omega, self._embed_weight(enc), enc["embed"].bias))
+        _, (h, _) = enc["lstm"](x)
         return h[0]
 
-    def _map(self, enc: nn.ModuleDict, omega: torch.Tensor, cell: torch.Tensor, grid: tuple[int, int],
-             weight: nn.Linear | None) -> torch.Tensor:
-        """Agents (B, K, H, D) with cells (B, K) -> pooled map (B, C, gx, gy); only present agents are encoded."""
+    def _conv_map(self, enc: nn.ModuleDict, omega: torch.Tensor, cell: torch.Tensor, grid: tuple[int, int],
+                  conv: nn.Sequential, weight: nn.Linear | None) -> torch.Tensor:
+        """Agents (B, K, H, D) in cells (B, K) (-1 none) -> the ConvNet's features of their map (B, F).
+
+        The map holds the sum of the (weighted) hidden states of the agents in each cell, zero elsewhere. Its
+        first convolution is computed from the agents, not the cells: a convolution is linear, so conv(map) =
+        bias + the sum over agents of each kernel tap applied to the agent's state at the cell it reaches;
+        with a few agents on a grid of many cells that is several times less work, and the same function.
+        Only present agents are encoded.
+        """
         b, k = cell.shape
-        c = self.cfg.encoder
+        gx, gy = grid
         flat = cell.reshape(-1)
-        have = flat >= 0
-        # Encode present slots only, their count rounded up to a multiple of 128: few distinct shapes, so
-        # oneDNN reuses its LSTM kernels, and empty slots cost (almost) nothing.
-        n = min(b * k, -(-int(have.sum()) // 128) * 128)
-        rows = torch.argsort((~have).to(torch.int8), stable=True)[:n]
+        rows = torch.nonzero(flat >= 0).squeeze(1)
         hj = self._encode(enc, omega.reshape(b * k, *omega.shape[2:]).index_select(0, rows))
         if weight is not None:
             hj = fn.elu(weight(hj))
-        h = torch.zeros(b * k, c, dtype=hj.dtype).index_copy(0, rows, hj) * have.unsqueeze(1).to(hj.dtype)
-        g = grid[0] * grid[1]
-        slot = (torch.arange(b).repeat_interleave(k) * (g + 1) + torch.where(flat >= 0, flat, g))
-        pooled = torch.zeros(b * (g + 1), c, dtype=h.dtype).index_add(0, slot, h)  # sum of agents per cell
-        return pooled.reshape(b, g + 1, c)[:, :g].reshape(b, grid[0], grid[1], c).permute(0, 3, 1, 2)
+        conv1 = conv[0]
+        c_out, c_in, kx, ky = conv1.weight.shape
+        px, py = conv1.padding
+        # taps[n, dx, dy] = W[:, :, dx, dy] h_n, added at output cell (x - dx + px, y - dy + py); in a grid grown
+        # by kx - 1 (ky - 1) cells every tap lands inside, and the conv's output is a window of it.
+        taps = (hj @ conv1.weight.permute(1, 2, 3, 0).reshape(c_in, kx * ky * c_out)).view(-1, kx * ky, c_out)
+        sel = flat.index_select(0, rows)
+        ox = (sel // gy)[:, None] - torch.arange(kx).repeat_interleave(ky) + (kx - 1)  # (n, kx * ky)
+        oy = (sel % gy)[:, None] - torch.arange(ky).repeat(kx) + (ky - 1)
+        wx, wy = gx + kx - 1, gy + ky - 1
+        slot = ((rows // k)[:, None] * wx + ox) * wy + oy
+        grown = taps.new_zeros(b * wx * wy, c_out).index_add_(0, slot.reshape(-1), taps.reshape(-1, c_out))
+        x0, y0 = kx - 1 - px, ky - 1 - py
+        out1 = grown.view(b, wx, wy, c_out)[:, x0:x0 + gx, y0:y0 + gy] + conv1.bias
+        return conv[1:](out1.permute(0, 3, 1, 2))
 
     def forward(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
         cfg = self.cfg
         parts = [self._encode(self.ego, batch["hist"])]
         if cfg.horizon:
-            hz_map = self._map(self.hz, batch["hz"], batch["hz_cell"], cfg.horizon_grid, self.hz_weight)
-            parts.append(self.hz_conv(hz_map))
-        nb_map = self._map(self.nbr, batch["nbr"], batch["nbr_cell"], cfg.neighbour_grid, None)
-        parts.append(self.nbr_conv(nb_map))
+            parts.append(self._conv_map(self.hz, batch["hz"], batch["hz_cell"], cfg.horizon_grid, self.hz_conv,
+                                        self.hz_weight))
+        parts.append(self._conv_map(self.nbr, batch["nbr"], batch["nbr_cell"], cfg.neighbour_grid, self.nbr_conv,
+                                    None))
         z = torch.cat(parts, -1)
-        y, _ = self.decoder(z[:, None].expand(-1, cfg.future, -1))
-        o = self.out(y)
+        o = self.out(constant_input_lstm(self.decoder, z, cfg.future))  # z at every step, projected once
         # Means as summed per-step displacements: a constant output is constant velocity, easy to start from.
         mu = torch.cumsum(o[..., :2], 1) * cfg.step_scale
         sigma = (fn.softplus(o[..., 2:4]) + 1e-3) * cfg.pos_scale
