@@ -3,9 +3,12 @@
     python bench/predictor.py            # --quick (default): small budget, a few minutes on 2 cores
     python bench/predictor.py --full     # more data and the paper's 16 epochs
     python bench/predictor.py --data DIR # reuse a data set generated from sumo_arterial_dense
+    python bench/predictor.py --data DIR --speed --threads 1,2   # only throughput and inference time
 
 Prints figures measured in this run: samples/s of training (batch building from the cached index +
-forward + backward + Adam step), ms per batched forecast of every agent of a ~100-agent frame, and
+forward + backward + Adam step) and ms per batched forecast of every agent of a ~100-agent frame (the
+shipped TraPHic), each at 1 and 2 threads, wall-clock and CPU time, with the load average (the machine is
+shared: CPU time is what an idle machine would give one thread), and
 ADE/FDE (mean Euclidean and RMSE) of TraPHic, its three ablations and constant velocity on the held-out
 scenes, all trained with the same budget; writes the RMSE-per-second figure of all methods.
 """
@@ -40,39 +43,68 @@ from simharness.report import plot_rmse_curve  # noqa: E402
 VARIANTS = ("traphic-b", "traphic-he", "traphic-ho", "traphic")
 
 
-def throughput(data: Path, batches: int = 30, batch_size: int = 128) -> float:
-    """Training samples per second incl. batch building, measured after 5 warm-up batches."""
+def _load() -> str:
+    """The machine's load average over 1 minute, for the record beside every timing."""
+    return f"load {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores"
+
+
+def throughput(data: Path, threads: int, batches: int = 40, batch_size: int = 128) -> tuple[float, float]:
+    """Training samples per second, batch building from the cached index + forward + backward + Adam step, after 5
+    warm-up batches -> (wall-clock, CPU-time) samples/s. CPU time excludes waiting for the cores, so it is the
+    rate of an otherwise idle machine (for one thread; with more it adds the threads' times up)."""
+    torch.set_num_threads(threads)
     store = load_windows(data, WindowConfig(), progress=False)
     torch.manual_seed(0)
     net = build_model("traphic", {"history": store.H, "future": store.F})
-    opt = torch.optim.Adam(net.parameters(), lr=1e-3)
+    opt = torch.optim.Adam(net.parameters(), lr=1e-3, fused=True)
     rng = np.random.default_rng(0)
-    t0 = 0.0
+    t0 = c0 = 0.0
     for i in range(batches + 5):
         if i == 5:
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
         b = store.batch(rng.integers(0, len(store), batch_size)).tensors()
         loss = mse(net(b), b["fut"], b["fut_valid"])
         opt.zero_grad()
         loss.backward()
         opt.step()
-    return batches * batch_size / (time.perf_counter() - t0)
+    n = batches * batch_size
+    return n / (time.perf_counter() - t0), n / (time.process_time() - c0)
 
 
-def inference_ms(data: Path, predictor: ModelPredictor, calls: int = 20) -> tuple[float, int]:
-    """Median ms of one predict() call for every agent present at a frame with ~100 agents."""
+def inference_ms(data: Path, predictor: ModelPredictor, threads: int, calls: int = 30) -> tuple[float, float, int]:
+    """One predict() call for every agent present at a frame with ~100 agents -> (median wall ms, median CPU ms,
+    agents)."""
+    torch.set_num_threads(threads)
     scene = Dataset(data).scene(0)
     counts = scene.valid.sum(0)
     now = int(np.argmin(np.abs(counts - 100) + 1000 * (np.arange(scene.num_frames) < 15)))
     hist = scene.slice_frames(now - 14, now + 1)
     rows = np.flatnonzero(hist.valid[:, -1])
-    predictor.predict(hist, rows, 25)
-    times = []
-    for _ in range(calls):
-        t = time.perf_counter()
+    for _ in range(3):
         predictor.predict(hist, rows, 25)
-        times.append(time.perf_counter() - t)
-    return 1000 * float(np.median(times)), len(rows)
+    wall, cpu = [], []
+    for _ in range(calls):
+        t, c = time.perf_counter(), time.process_time()
+        predictor.predict(hist, rows, 25)
+        wall.append(time.perf_counter() - t)
+        cpu.append(time.process_time() - c)
+    return 1000 * float(np.median(wall)), 1000 * float(np.median(cpu)), len(rows)
+
+
+def speed(data: Path, predictor: ModelPredictor, threads: list[int]) -> dict[str, dict[str, float]]:
+    """Throughput and inference at each thread count, printed with the load they were measured under."""
+    out: dict[str, dict[str, float]] = {}
+    for k in threads:
+        wall, cpu = throughput(data, k)
+        print(f"training throughput, {k} thread(s): {wall:.0f} samples/s wall-clock, {cpu:.0f} samples/s of CPU "
+              f"time (batch 128, data loading included; {_load()}; target >= 1000, the authors' code ~200)")
+        ms, cms, n = inference_ms(data, predictor, k)
+        print(f"inference, {k} thread(s): {ms:.1f} ms wall-clock, {cms:.1f} ms CPU, median of 30 calls predicting all "
+              f"{n} agents of a frame in one call ({_load()}; target <= 20 ms)")
+        out[str(k)] = {"samples_per_s": wall, "samples_per_cpu_s": cpu, "inference_ms": ms, "inference_cpu_ms": cms,
+                       "agents": n, "load": os.getloadavg()[0]}
+    torch.set_num_threads(int(os.environ["OMP_NUM_THREADS"]))
+    return out
 
 
 def main() -> int:
@@ -82,6 +114,8 @@ def main() -> int:
     ap.add_argument("--out", type=Path, default=Path("runs/bench_predictor"))
     ap.add_argument("--max-samples", type=int, default=None, help="override the training windows per model")
     ap.add_argument("--epochs", type=int, default=None, help="override the epochs per model")
+    ap.add_argument("--speed", action="store_true", help="only the throughput and inference figures")
+    ap.add_argument("--threads", default="1,2", help="thread counts to time (comma-separated)")
     args = ap.parse_args()
     torch.set_num_threads(int(os.environ["OMP_NUM_THREADS"]))
     seeds, duration, samples, epochs, warmup = ("0-5", 40, 3000, 3, 1) if not args.full else ("0-19", 60, None, 16, 2)
@@ -93,9 +127,9 @@ def main() -> int:
     t = time.perf_counter()
     load_windows(data, WindowConfig())
     print(f"windows index built or loaded in {time.perf_counter() - t:.1f} s")
-    sps = throughput(data)
-    print(f"training throughput: {sps:.0f} samples/s (batch 128, data loading included, "
-          f"{torch.get_num_threads()} threads; target >= 1000, the authors' code ~200)")
+    timing = speed(data, ModelPredictor.shipped("traphic"), [int(k) for k in args.threads.split(",")])
+    if args.speed:
+        return 0
     results, curves, train_s = {}, {}, {}
     for name in VARIANTS:
         t = time.perf_counter()
@@ -103,9 +137,6 @@ def main() -> int:
                     max_val_samples=2000, seed=0, progress=False)
         train_s[name] = time.perf_counter() - t
         pred = ModelPredictor.from_run(args.out / name)
-        if name == "traphic":
-            ms, n = inference_ms(data, pred)
-            print(f"inference: {ms:.1f} ms for all {n} agents of a frame in one call (target <= 20 ms)")
         results[name] = evaluate(data, pred, "traphic", split="test", progress=False, name=name)
         curves[name] = results[name]["rmse_per_second"]
         print(f"{name}: trained {train_s[name]:.0f} s ({res['samples_per_s']:.0f} samples/s), best epoch "
@@ -122,7 +153,7 @@ def main() -> int:
     print(f"ablation order, best to worst by ADE-RMSE: {' < '.join(order)} (paper: traphic < traphic-ho < "
           "traphic-he < traphic-b)")
     fig = plot_rmse_curve(curves, args.out / "rmse_curve.png", title="RMSE per horizon second, dense arterial")
-    (args.out / "results.json").write_text(json.dumps({"throughput": sps, "results": results,
+    (args.out / "results.json").write_text(json.dumps({"speed": timing, "results": results,
                                                        "train_seconds": train_s}, indent=1) + "\n")
     print(f"-> {fig}, {args.out / 'results.json'}")
     return 0

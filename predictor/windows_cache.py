@@ -45,8 +45,9 @@ def default_cache_dir() -> Path:
 def cache_key(data_key: str, cfg: WindowConfig) -> dict[str, Any]:
     """What a cached store depends on: the data, the windows and the code that builds them."""
     code = hashlib.sha256(Path(features.__file__).read_bytes()).hexdigest()[:16]
-    return {"format": CACHE_FORMAT, "features_version": FEATURES_VERSION, "features_code": code,
-            "data": str(data_key), "window": cfg.to_dict()}
+    key = {"format": CACHE_FORMAT, "features_version": FEATURES_VERSION, "features_code": code,
+           "data": str(data_key), "window": cfg.to_dict()}
+    return json.loads(json.dumps(key))  # as read back from the file (tuples become lists)
 
 
 def _layout(shapes: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -59,7 +59,7 @@ from simharness.scene import AgentType, Forecast, Predictor, Scene
 from simharness.sim.base import Frame, RoadGeometry, scene_from_frames
 
 REFERENCE_EGOS = ("oracle", "static", "none", "blind")  # not predictors: handled here, not by load_predictor
-SCALARS = ("collided", "collisions", "at_fault_collided", "at_fault_collisions", "near_miss",
+SCALARS = ("collided", "collisions", "at_fault_collided", "at_fault_collisions", "phantom_braking_s", "near_miss",
            "near_misses_per_min", "min_gap_m", "background_collisions", "background_collisions_per_1000_agent_min",
            "progress_m", "mean_speed", "time_stuck_s", "accel_rms", "jerk_rms", "lat_accel_max", "online_ade",
            "online_fde", "online_ade_rmse", "online_fde_rmse", "realtime_factor")
@@ -321,6 +321,17 @@ def _slug(name: str) -> str:
 
 
 # ---------------------------------------------------------------------- scoring
+def box_heading(scene: Scene) -> np.ndarray:
+    """(N, T) rad: the heading the simulator's own bodies have, which collision boxes must use.
+
+    SUMO's sub-lane model moves lane-aligned bodies sideways: its recorded heading of motion turns by
+    atan(lateral / forward speed), 30 degrees for a car edging over at walking pace, which no body
+    does; boxes turned that way overlap neighbours SUMO (and the `sim_heading` boxes) keep apart.
+    Backends without `sim_heading` (highway) record the body heading itself.
+    """
+    return scene.extra["sim_heading"] if "sim_heading" in scene.extra else scene.heading
+
+
 def score_episode(scene: Scene, issued: _Issued, config: LoopConfig) -> dict[str, Any]:
     """Per-episode figures from the recorded Scene and the forecasts issued (see `SCALARS`)."""
     e = scene.ego
@@ -334,21 +345,23 @@ def score_episode(scene: Scene, issued: _Issued, config: LoopConfig) -> dict[str
         out["online_by_type"] = {}
         return out
     xy, hd, ln, wd, va = scene.xy, scene.heading, scene.length, scene.width, scene.valid
-    contact = safety.ego_contact(xy, hd, ln, wd, va, e)
+    bh = box_heading(scene)
+    contact = safety.ego_contact(xy, bh, ln, wd, va, e)
     # Overlaps the simulator created when it placed the ego are its doing, not the ego's: set apart.
     first = int(np.argmax(va[e]))
     placed = np.zeros_like(contact)
     placed[:, first:] = np.cumprod(contact[:, first:], axis=1).astype(bool)
     contact &= ~placed
     vel = scene.speed[..., None] * np.stack([np.cos(hd), np.sin(hd)], -1)
-    ttc = safety.time_to_collision(xy, vel, hd, ln, wd, va, e, horizon=config.ttc_horizon)
+    ttc = safety.time_to_collision(xy, vel, bh, ln, wd, va, e, horizon=config.ttc_horizon)
     near = safety.near_misses(ttc, contact, va, config.ttc_threshold)
-    gap = safety.min_gap(xy, hd, ln, wd, va, e)
-    bg = safety.background_collisions(xy, hd, ln, wd, va, e)
+    gap = safety.min_gap(xy, bh, ln, wd, va, e)
+    bg = safety.background_collisions(xy, bh, ln, wd, va, e)
     ego_minutes = va[e].sum() * dt / 60.0
     agent_minutes = (va.sum() - va[e].sum()) * dt / 60.0
     by_type = safety.collisions_by_type(contact, scene.agent_type)
-    fault = safety.ego_at_fault(safety.spell_onsets(contact), xy, vel, hd, wd, va, e)
+    phantom = safety.phantom_braking(xy, scene.speed, bh, ln, wd, va, e, dt)
+    fault = safety.ego_at_fault(safety.spell_onsets(contact), xy, vel, hd, wd, va, e, phantom=phantom)
     out.update({
         "collided": float(contact.any()),
         "insertion_overlaps": int(placed[:, first].sum()),
@@ -356,6 +369,7 @@ def score_episode(scene: Scene, issued: _Issued, config: LoopConfig) -> dict[str
         "collisions_by_type": by_type,
         "at_fault_collided": float(fault.any()),
         "at_fault_collisions": float(fault.sum()),
+        "phantom_braking_s": float(phantom.sum() * dt),
         "first_collision_t": float(scene.times[np.flatnonzero(contact.any(0))[0]]) if contact.any() else None,
         "near_miss": float(near.any()),
         "near_misses_per_min": float(near.sum() / max(ego_minutes, 1e-9)),

@@ -1,7 +1,10 @@
 """`make demo`: the main job end to end, as a plain sequence of steps.
 
-For now: generate a small data set from the dense arterial scenario, print its Table-1 figures,
-draw one frame, and say where everything is. Later issues add steps (training, closed loop, gym).
+1. generate a small dense test set from the shipped arterial scenario (seeds the shipped weights never saw);
+2. print its figures in the form of the TraPHic paper's Table 1, and draw one frame;
+3. score the shipped TraPHic against constant velocity open-loop on it (ADE/FDE both ways, figures);
+4. drive an ego in closed loop on TraPHic, constant-velocity, oracle and no forecasts; print the
+   scorecard and write runs/demo/report.md with the tables, figures and one animation.
 
     python -m simharness.demo --out runs/demo
 """
@@ -15,7 +18,10 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from simharness.errors import SimulatorError, UserError
+from simharness.evaluation import evaluate
+from simharness.evaluation import format_table as format_eval_table
 from simharness.generation import generate
+from simharness.predictors import load_predictor
 from simharness.scenario import load_scenario
 from simharness.stats import dataset_stats, format_table, write_frame_figure
 
@@ -34,7 +40,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         # 1. data: a small dense, heterogeneous, lane-less data set from SUMO
         spec = load_scenario(SCENARIO).with_overrides({"duration": args.duration})
         data = out / "data" / SCENARIO
-        print(f"[1/3] generating {args.seeds} scenes of {SCENARIO} ({args.duration:g} s each) into {data}")
+        print(f"[1/5] generating {args.seeds} scenes of {SCENARIO} ({args.duration:g} s each) into {data}")
         run = generate(spec, list(range(args.seeds)), data, workers=args.workers)
         if run["failed"]:
             raise SimulatorError(f"seeds {sorted(run['failed'])} failed: {next(iter(run['failed'].values()))}")
@@ -42,20 +48,33 @@ def main(argv: Sequence[str] | None = None) -> int:
               f"({run['agent_frames_per_s']:,.0f}/s), {run['skipped']} scenes already there")
 
         # 2. its figures, in the form of the TraPHic paper's Table 1
-        print("[2/3] data set figures")
+        print("[2/5] data set figures")
         stats = dataset_stats(data)
         print(format_table(stats))
         (out / "stats.json").write_text(json.dumps(stats, indent=1, sort_keys=True) + "\n")
 
         # 3. one frame top-down
         figure = write_frame_figure(data, out / "frame.png")
-        print(f"[3/3] figure: {figure}")
+        print(f"[3/5] figure: {figure}")
 
-        # 4. closed loop: an ego driven on TraPHic, constant-velocity and oracle forecasts, and with none
+        # 4. open loop: the shipped TraPHic against constant velocity on the fresh scenes
+        print("[4/5] open loop: shipped TraPHic vs constant velocity (all scenes of the fresh data set)")
+        openloop = {}
+        for name in ("traphic", "const-vel"):
+            openloop[name] = evaluate(data, load_predictor(name), "traphic", split="all",
+                                      figure_dir=out / "openloop" / name, progress=False, name=name)
+            (out / "openloop" / name / "metrics.json").write_text(json.dumps(openloop[name], indent=1) + "\n")
+        table = format_eval_table(openloop)
+        print(table)
+
+        # 5. closed loop: an ego driven on TraPHic, constant-velocity and oracle forecasts, and with none
         from simharness.closedloop import demo_closed_loop
 
-        print("[4/4] closed loop: egos on TraPHic, constant velocity, oracle and no prediction")
-        report = demo_closed_loop(out, workers=args.workers, extra_md=f"![one frame of the data set]({figure.name})")
+        print("[5/5] closed loop: egos on TraPHic, constant velocity, oracle and no prediction")
+        report = demo_closed_loop(out, workers=args.workers, extra_md=(
+            f"![one frame of the data set]({figure.name})\n\n## Open loop (shipped TraPHic vs constant velocity)"
+            f"\n\n```\n{table}\n```\n\n![RMSE per horizon second](openloop/traphic/rmse_curve.png)\n"
+            "![forecasts](openloop/traphic/forecasts.png)\n"))
         print(f"      report: {report}")
     except UserError as e:
         print(f"demo: error: {e}", file=sys.stderr)
@@ -67,6 +86,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(f"  data set     {data}  (manifest.json + one Parquet shard per scene; runs.jsonl logs each run)")
     print(f"  stats        {out / 'stats.json'}  (also: simharness stats {data})")
     print(f"  figure       {figure}")
+    print(f"  open loop    {out / 'openloop'}  (metrics.json, rmse_curve.png, forecasts.png per predictor)")
+    print(f"  closed loop  {out / 'closedloop'}  (scores.json, episodes, animation)")
+    print(f"  report       {out / 'report.md'}")
     return 0
 
 

@@ -111,7 +111,10 @@ def evaluate(data: Path, predictor: Predictor, protocol: EvalProtocol | str = "t
         figure_dir.mkdir(parents=True, exist_ok=True)
         plot_rmse_curve({name or "predictor": out["rmse_per_second"]}, figure_dir / "rmse_curve.png", units=units)
         scene, now, rows, hxy, txy, fc, road = example
-        pick = np.argsort(np.linalg.norm(txy[:, -1] - hxy[:, -1], axis=-1))[::-1][:8]  # the 8 that move most
+        # The target that moves most of each agent type, so that the figure shows the mix.
+        moved = np.argsort(np.linalg.norm(txy[:, -1] - hxy[:, -1], axis=-1))[::-1]
+        _, first = np.unique(scene.agent_type[rows[moved]], return_index=True)
+        pick = moved[np.sort(first)][:4]
         plot_forecasts(scene, now, rows[pick], hxy[pick], txy[pick], fc.mean[pick], figure_dir / "forecasts.png",
                        sigma_rho=None if fc.sigma_rho is None else fc.sigma_rho[pick], road=road,
                        title=f"{name}: history (black), truth (green), prediction (red, 1 sigma)")

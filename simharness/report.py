@@ -12,6 +12,7 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")  # headless everywhere; no display on CI
+matplotlib.rcParams["savefig.bbox"] = "tight"  # keep legends placed outside the axes
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.axes import Axes  # noqa: E402
@@ -89,7 +90,8 @@ def type_legend(ax: Axes, types: np.ndarray | None = None, ego: bool = False) ->
     handles = [Patch(color=TYPE_COLORS[AgentType(t)], label=AgentType(t).label) for t in present]
     if ego:
         handles.append(Patch(color=EGO_COLOR, label="ego"))
-    ax.legend(handles=handles, loc="upper right", fontsize=7, ncol=min(len(handles), 5), framealpha=0.8)
+    # Outside the axes, to the right: over the road it hid agents.
+    ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7, framealpha=0.8)
 
 
 def plot_frame(scene: Scene, frame: int, path: Path | str, road: RoadGeometry | None = None,
@@ -336,31 +338,46 @@ def _sigma_ellipses(mean: np.ndarray, sigma_rho: np.ndarray) -> list[np.ndarray]
 
 def plot_forecasts(scene: Scene, now: int, rows: np.ndarray, history: np.ndarray, truth: np.ndarray,
                    mean: np.ndarray, path: Path | str, sigma_rho: np.ndarray | None = None,
-                   road: RoadGeometry | None = None, title: str | None = None, every: int = 5) -> Path:
-    """The paper's Figure 4: traffic at `now`, and for targets `rows` (M,) their history (M, H, 2) in black,
-    ground truth (M, F, 2) green, prediction (M, F, 2) red with 1-sigma ellipses every `every` frames."""
+                   road: RoadGeometry | None = None, title: str | None = None, every: int = 5,
+                   panels: int = 4) -> Path:
+    """The paper's Figure 4: for targets `rows` (M,) their history (M, H, 2) in black, ground truth (M, F, 2)
+    green, prediction (M, F, 2) red with 1-sigma ellipses every `every` frames, over the traffic at `now`.
+
+    One zoomed panel per target (the first `panels` targets), so that metres stay readable on a long road.
+    """
     path = Path(path)
     valid = scene.valid[:, now]
-    fig, ax = plt.subplots(figsize=(12, 4.5), dpi=120)
-    draw_road(ax, road)
-    draw_agents(ax, scene.xy[valid, now], scene.heading[valid, now], scene.length[valid], scene.width[valid],
-                scene.agent_type[valid])
-    ax.add_collection(LineCollection(list(history), colors="black", linewidths=1.2, zorder=4))
-    ax.add_collection(LineCollection(list(truth), colors="#2ca02c", linewidths=1.5, zorder=4))
-    ax.add_collection(LineCollection(list(mean), colors="#d62728", linewidths=1.5, zorder=5))
+    k = max(1, min(panels, len(rows)))
+    fig, axes = plt.subplots(k, 1, figsize=(9, 2.0 * k), dpi=120, squeeze=False)
+    ell = None
     if sigma_rho is not None:
         idx = np.arange(every - 1, mean.shape[1], every)
-        ell = _sigma_ellipses(mean[:, idx].reshape(-1, 2), sigma_rho[:, idx].reshape(-1, 3))
-        ax.add_collection(PolyCollection(ell, facecolor="#d62728", alpha=0.12, edgecolor="none", zorder=4))
-    pts = np.concatenate([history.reshape(-1, 2), truth.reshape(-1, 2), mean.reshape(-1, 2)])
-    (x0, y0), (x1, y1) = pts.min(0) - 10, pts.max(0) + 10
-    ax.set_xlim(x0, x1)
-    ax.set_ylim(y0, y1)
-    ax.set_aspect("equal")
-    ax.set_xlabel(f"x ({scene.units})")
-    ax.set_ylabel(f"y ({scene.units})")
-    ax.set_title(title or f"t = {scene.times[now]:.1f} s: history (black), truth (green), prediction (red, 1 sigma)")
-    type_legend(ax, scene.agent_type[valid])
+        ell = np.asarray(_sigma_ellipses(mean[:, idx].reshape(-1, 2), sigma_rho[:, idx].reshape(-1, 3)))
+        ell = ell.reshape(len(rows), len(idx), *ell.shape[1:])
+    for m, ax in enumerate(axes[:, 0]):
+        draw_road(ax, road)
+        draw_agents(ax, scene.xy[valid, now], scene.heading[valid, now], scene.length[valid], scene.width[valid],
+                    scene.agent_type[valid], highlight=np.flatnonzero(valid) == rows[m])
+        ax.add_collection(LineCollection(list(history), colors="black", linewidths=1.0, alpha=0.4, zorder=4))
+        ax.plot(*history[m].T, color="black", lw=1.6, zorder=5, label="history")
+        ax.plot(*truth[m].T, color="#2ca02c", lw=1.8, zorder=5, label="ground truth")
+        ax.plot(*mean[m].T, color="#d62728", lw=1.8, zorder=6, label="prediction")
+        if ell is not None:
+            ax.add_collection(PolyCollection(list(ell[m]), facecolor="#d62728", alpha=0.15, edgecolor="#d62728",
+                                             linewidths=0.3, zorder=4))
+        pts = np.concatenate([history[m], truth[m], mean[m]])
+        centre, half = (pts.min(0) + pts.max(0)) / 2, np.maximum((pts.max(0) - pts.min(0)) / 2 + 8, [30, 9])
+        ax.set_xlim(centre[0] - half[0], centre[0] + half[0])
+        ax.set_ylim(centre[1] - half[1], centre[1] + half[1])
+        ax.set_aspect("equal")
+        ax.set_ylabel(f"y ({scene.units})")
+        kind = AgentType(int(scene.agent_type[rows[m]])).label
+        ax.set_title(f"{kind} {scene.agent_id[rows[m]]}", fontsize=9)
+        if m == 0:
+            ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7)
+    axes[-1, 0].set_xlabel(f"x ({scene.units})")
+    fig.suptitle(title or f"t = {scene.times[now]:.1f} s: history (black), truth (green), "
+                          "prediction (red, 1-sigma ellipses)", fontsize=10)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path)

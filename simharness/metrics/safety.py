@@ -152,18 +152,56 @@ def background_collisions(
     return events[keep]
 
 
+def phantom_braking(xy: np.ndarray, speed: np.ndarray, heading: np.ndarray, length: np.ndarray, width: np.ndarray,
+                    valid: np.ndarray, ego: int, dt: float, window: float = 1.5, hard_brake: float = 2.5,
+                    stopped: float = 0.5, headway: float = 1.5, standstill: float = 4.0) -> np.ndarray:
+    """Frames at which the ego brakes hard, or stands, with nothing ahead of it that calls for it.
+
+    Hard braking: speed lost over the last `window` s above `hard_brake` m/s^2 on average; standing:
+    speed under `stopped` m/s. Nothing ahead: every time in the window, no agent overlapping the ego's
+    lateral band (box heading frame) has its rear within `standstill` + `headway` x ego speed of the
+    ego's front. A follower that runs into such an ego was given no reason to expect the stop.
+    xy (N, T, 2) m, speed (N, T) m/s, heading (N, T) rad (box heading), length/width (N,) m, valid (N, T)
+    -> (T,) bool (False where the ego is absent).
+    """
+    n, t = valid.shape
+    out = np.zeros(t, bool)
+    if ego < 0:
+        return out
+    k = max(1, int(round(window / dt)))
+    ve = np.where(valid[ego], speed[ego], 0.0)
+    back = np.concatenate([np.full(k, np.nan), ve[:-k]]) if t > k else np.full(t, np.nan)
+    braking = np.nan_to_num((back - ve) / (k * dt), nan=0.0) > hard_brake
+    standing = ve < stopped
+    fwd = np.stack([np.cos(heading[ego]), np.sin(heading[ego])], -1)  # (T, 2)
+    rel = xy - xy[ego][None]  # (N, T, 2)
+    along = np.einsum("ntd,td->nt", rel, fwd)
+    lat = rel[..., 1] * fwd[None, :, 0] - rel[..., 0] * fwd[None, :, 1]
+    band = np.abs(lat) < (width[:, None] + width[ego]) / 2
+    gap = along - (length[:, None] + length[ego]) / 2
+    need = standstill + headway * ve  # (T,)
+    blocked = (valid & valid[ego][None] & band & (gap > -0.5) & (gap < need[None])).any(0)
+    # Blocked at any time in the window (a leader that just left still explains the braking).
+    cum = np.concatenate([[0], np.cumsum(blocked)])
+    recent = (cum[1:] - cum[np.maximum(np.arange(t) + 1 - k - 1, 0)]) > 0
+    return valid[ego] & (braking | standing) & ~recent
+
+
 def ego_at_fault(onsets: np.ndarray, xy: np.ndarray, velocity: np.ndarray, heading: np.ndarray,
-                 width: np.ndarray, valid: np.ndarray, ego: int, flow_radius: float = 30.0) -> np.ndarray:
+                 width: np.ndarray, valid: np.ndarray, ego: int, flow_radius: float = 30.0,
+                 phantom: np.ndarray | None = None) -> np.ndarray:
     """Which ego collisions the ego caused, judged in the local traffic-flow frame at the onset.
 
     Flow direction: mean heading of the valid agents within `flow_radius` m of the ego that move the
     ego's way. Contact in line (lateral overlap in that frame): the ego is at fault if the other is ahead
-    and the ego was faster along the flow (it ran into it), never when hit from behind. Contact side by
-    side: the ego is at fault if it moved across the flow towards the other faster than the other
-    moved towards it (so being cut into while holding its line is not its fault).
+    and the ego was faster along the flow (it ran into it); hit from behind, only if it was braking or
+    standing for nothing (`phantom`, from `phantom_braking`). Contact side by side: the ego is at fault
+    if it moved across the flow towards the other faster than the other moved towards it (so being cut
+    into while holding its line is not its fault).
 
     onsets (N, T) bool (first frames of contact, e.g. `spell_onsets(ego_contact(...))`), xy (N, T, 2) m,
-    velocity (N, T, 2) m/s, heading (N, T) rad, width (N,) m, valid (N, T) -> (N, T) bool, within onsets.
+    velocity (N, T, 2) m/s, heading (N, T) rad, width (N,) m, valid (N, T), phantom (T,) bool or None
+    -> (N, T) bool, within onsets.
     """
     rows, cols = np.nonzero(onsets)
     out = np.zeros_like(onsets, dtype=bool)
@@ -182,6 +220,8 @@ def ego_at_fault(onsets: np.ndarray, xy: np.ndarray, velocity: np.ndarray, headi
     ve, vo = velocity[ego, cols], velocity[rows, cols]
     in_line = np.abs(lat) < (width[rows] + width[ego]) / 2 - 0.1
     ran_into = (along > 0) & (np.einsum("pd,pd->p", ve, axis) > np.einsum("pd,pd->p", vo, axis))
+    if phantom is not None:  # rear-ended while braking or standing for nothing: the ego's doing
+        ran_into |= (along <= 0) & phantom[cols]
     side = np.sign(lat)
     ego_in = np.einsum("pd,pd->p", ve, normal) * side  # ego moving across the flow towards the other
     other_in = -np.einsum("pd,pd->p", vo, normal) * side  # other moving across the flow towards the ego
