@@ -37,6 +37,21 @@ TYPE_COLORS: dict[AgentType, str] = {
 EGO_COLOR = "#000000"
 
 
+def _save(fig: plt.Figure, path: Path) -> Path:
+    """Lay out, write atomically (creating folders) and close a figure; returns its path."""
+    import io
+
+    from simharness.io.parquet import atomic_write_bytes
+
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format=path.suffix.lstrip(".") or "png")
+    plt.close(fig)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(path, buf.getvalue())  # a figure is never seen half-written either
+    return path
+
+
 def type_colors(agent_type: np.ndarray) -> list[str]:
     """(N,) int8 -> N colour strings."""
     return [TYPE_COLORS[AgentType(int(t))] for t in agent_type]
@@ -126,11 +141,7 @@ def plot_frame(scene: Scene, frame: int, path: Path | str, road: RoadGeometry | 
     ax.set_title(title or f"{scene.meta.get('scenario', '')} t = {scene.times[frame]:.1f} s, "
                           f"{int(valid.sum())} agents")
     type_legend(ax, scene.agent_type[valid], ego=scene.ego >= 0)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 # ---------------------------------------------------------------------- closed loop (simharness.closedloop)
@@ -216,11 +227,7 @@ def plot_scorecard(scores: dict[str, dict], path: Path | str) -> Path:
                     capsize=3)
         ax.set_xticks(x, names, rotation=30, fontsize=8)
         ax.set_title(label, fontsize=9)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 def plot_online_error_by_type(scores: dict[str, dict], path: Path | str) -> Path:
@@ -236,11 +243,7 @@ def plot_online_error_by_type(scores: dict[str, dict], path: Path | str) -> Path
     ax.set_xticks(np.arange(len(types)) + 0.4 - width / 2, types, fontsize=8)
     ax.set_ylabel("online ADE (m)")
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 def write_report(run_dir: Path | str, title: str = "Closed-loop report", extra_md: str = "",
@@ -318,11 +321,7 @@ def plot_rmse_curve(curves: dict[str, list[float]], path: Path | str, units: str
     ax.set_title(title)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 def _sigma_ellipses(mean: np.ndarray, sigma_rho: np.ndarray) -> list[np.ndarray]:
@@ -378,11 +377,7 @@ def plot_forecasts(scene: Scene, now: int, rows: np.ndarray, history: np.ndarray
     axes[-1, 0].set_xlabel(f"x ({scene.units})")
     fig.suptitle(title or f"t = {scene.times[now]:.1f} s: history (black), truth (green), "
                           "prediction (red, 1-sigma ellipses)", fontsize=10)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 def plot_sweep(points: list[dict], axis: str, path: Path | str, title: str = "",
@@ -393,10 +388,6 @@ def plot_sweep(points: list[dict], axis: str, path: Path | str, title: str = "",
     points: [{"settings": {axis: value, ...}, "group": line label, metric: {"mean", "lo", "hi", "n"}}, ...];
     one line per group; a numeric axis is drawn to scale, any other as categories in the given order.
     """
-    import io
-
-    from simharness.io.parquet import atomic_write_bytes
-
     path = Path(path)
     values = list(dict.fromkeys(p["settings"][axis] for p in points))
     numeric = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values)
@@ -421,13 +412,7 @@ def plot_sweep(points: list[dict], axis: str, path: Path | str, title: str = "",
         axes[0, 0].legend(fontsize=8)
     if title:
         fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png")
-    plt.close(fig)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write_bytes(path, buf.getvalue())  # a figure is never seen half-written either
-    return path
+    return _save(fig, path)
 
 
 # ---------------------------------------------------------------------- benchmark figures (H7)
@@ -436,10 +421,6 @@ def plot_method_bars(rows: dict[str, tuple[float, float, float]], path: Path | s
 
     rows: label -> (ADE-RMSE, FDE-RMSE in `units`, training seconds).
     """
-    import io
-
-    from simharness.io.parquet import atomic_write_bytes
-
     path = Path(path)
     names = list(rows)
     vals = np.array([rows[n] for n in names], dtype=np.float64).reshape(-1, 3)
@@ -456,10 +437,4 @@ def plot_method_bars(rows: dict[str, tuple[float, float, float]], path: Path | s
     ax.legend(fontsize=8)
     ax.set_title("prediction error per method")
     ax2.set_title("training time")
-    fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png")
-    plt.close(fig)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write_bytes(path, buf.getvalue())
-    return path
+    return _save(fig, path)
