@@ -16,8 +16,8 @@ of it; each keeps a fixed number of nearest agents, placed on a spatial grid (ce
 the agent's frame) that the model turns into the neighbour map and the horizon map.
 
 Everything is vectorised over all agents of a frame; a data set's per-agent-frame arrays and its
-sample index are built once and cached (`FeatureStore.build`), so a training batch is a handful of
-numpy gathers.
+sample index are built once (`FeatureStore.build`) and cached (predictor.windows_cache), so a training
+batch is a handful of numpy gathers. Inference builds a store of one frame by the same code.
 """
 
 from __future__ import annotations
@@ -220,8 +220,10 @@ def frame_concentration(xy: np.ndarray, heading: np.ndarray, valid: np.ndarray, 
             rows = order[:k, start:stop]  # (k, C)
             ok = np.arange(k)[:, None] < counts[start:stop]
             p, h = xy[rows, c], heading[rows, c]  # (k, C, 2), (k, C)
-            rel = to_local(p[None], p[:, None], h[:, None])  # (k, k, C, 2): j in i's frame
-            inside = (rel[..., 0] > 0) & (rel[..., 0] <= box[0]) & (np.abs(rel[..., 1]) <= box[1] / 2) & ok[None]
+            cos, sin = np.cos(h)[:, None], np.sin(h)[:, None]
+            dx, dy = p[None, :, :, 0] - p[:, None, :, 0], p[None, :, :, 1] - p[:, None, :, 1]  # (k, k, C): j - i
+            along = cos * dx + sin * dy  # as `to_local`, without stacking the pair
+            inside = (along > 0) & (along <= box[0]) & (np.abs(-sin * dx + cos * dy) <= box[1] / 2) & ok[None]
             cc = np.broadcast_to(c, rows.shape)
             out[rows[ok], cc[ok]] = inside.sum(1)[ok]
         start = stop
@@ -278,10 +280,13 @@ class Batch:
         return int(self.hist.shape[0])
 
     def tensors(self) -> dict[str, Any]:
-        """torch tensors of the model inputs and targets (imports torch lazily)."""
+        """torch tensors of the model inputs and targets, sharing the arrays' memory (imports torch lazily).
+
+        hist, nbr and hz may be strided views of one array (`FeatureStore.batch`): models gather or reshape them.
+        """
         import torch
 
-        return {k: torch.from_numpy(np.ascontiguousarray(getattr(self, k)))
+        return {k: torch.from_numpy(getattr(self, k))
                 for k in ("hist", "nbr", "nbr_cell", "hz", "hz_cell", "fut", "fut_valid")}
 
 
@@ -339,8 +344,8 @@ class FeatureStore:
             if abs(scene.dt - dt) > 1e-9:
                 raise UserError(f"scene {scene_ids[s]!r} has dt {scene.dt:g} s, the others {dt:g} s")
             pad = (H - 1) * step
-            if not require_future:  # pad history on the left so partial histories index safely
-                scene = _pad_left(scene, pad)
+            if not require_future:  # pad history on the left, as far as needed, so partial histories index safely
+                scene = _pad_left(scene, max(0, pad - (scene.num_frames - 1)))
             n, t = scene.valid.shape
             shapes.append((n, t))
             if targets is None:

@@ -17,11 +17,16 @@ WEIGHTS = Path(__file__).parent / "weights"
 class ModelPredictor:
     """Wraps a model trained by predictor.train; `predict` batches every target of the frame."""
 
-    def __init__(self, model: Any, window: WindowConfig, name: str = "model", info: dict[str, Any] | None = None):
+    def __init__(self, model: Any, window: WindowConfig, name: str = "model", info: dict[str, Any] | None = None,
+                 threads: int = 1):
+        """threads: torch threads during `predict` (restored after). One by default: 100 agents take ~20 ms of one
+        core, the result does not depend on the machine's load, and on a loaded machine two threads spin-wait
+        for a busy core (measured 4x slower)."""
         self.model = model
         self.window = window
         self.name = name
         self.info = info or {}
+        self.threads = int(threads)
 
     @staticmethod
     def from_files(weights: Path, config: Path) -> ModelPredictor:
@@ -50,11 +55,16 @@ class ModelPredictor:
         store = FeatureStore.build([history], ["history"], self.window, targets=[targets], require_future=False)
         batch = store.batch(np.arange(len(targets)))
         inputs = batch.tensors()
-        with torch.inference_mode():  # no autograd records, and oneDNN's inference kernels for the LSTMs
-            out = self.model(inputs).numpy().astype(np.float64)  # (M, F, 5) local, metres
-            # Sampling models (Social-GAN) also give K futures (M, K, F, 2): Forecast.modes, for best-of-K scores.
-            samples = self.model.sample(inputs).numpy().astype(np.float64) if hasattr(
-                self.model, "sample") else None
+        caller_threads = torch.get_num_threads()
+        torch.set_num_threads(self.threads)
+        try:
+            with torch.inference_mode():  # no autograd records, and oneDNN's inference kernels for the LSTMs
+                out = self.model(inputs).numpy().astype(np.float64)  # (M, F, 5) local, metres
+                # Sampling models (Social-GAN) also give K futures (M, K, F, 2): Forecast.modes, for best-of-K scores.
+                samples = self.model.sample(inputs).numpy().astype(np.float64) if hasattr(
+                    self.model, "sample") else None
+        finally:
+            torch.set_num_threads(caller_threads)
         step, fm = store.step, out.shape[1]
         if horizon > fm * step:
             raise ValueError(f"{self.name} predicts {fm * step} frames of {history.dt:g} s, asked for {horizon}")

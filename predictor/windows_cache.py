@@ -6,7 +6,7 @@ list, `simharness generate` resuming into it) and may be read-only.
 
 Key: sha256 of the data set's content hash, the window config, FEATURES_VERSION and the source of
 predictor/features.py. Each file repeats its key and is checked when read: another key, a damaged zip or
-arrays that do not fit together mean a rebuild.
+arrays that do not fit together mean a rebuild. Files unused for 30 days are removed when a new one is written.
 
 Compact form (about 4x smaller than the arrays in memory):
 - agent-frame arrays only where valid (xy, vel, heading float32, concentration uint16), valid as packed bits;
@@ -17,9 +17,11 @@ Compact form (about 4x smaller than the arrays in memory):
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -102,6 +104,16 @@ def _check(ok: bool, what: str, path: Path) -> None:
 def load_store(path: Path, key: dict[str, Any] | None = None) -> FeatureStore:
     """A store written by `save_store`; with `key`, only if it was saved under that key. UserError otherwise."""
     try:
+        return _load(path, key)
+    except UserError:
+        raise
+    except Exception as e:  # a missing array, a wrong dtype or shape: the file is not what save_store wrote
+        raise UserError(f"{path}: damaged windows cache ({type(e).__name__}: {e}); delete it and it will be "
+                        "rebuilt") from None
+
+
+def _load(path: Path, key: dict[str, Any] | None) -> FeatureStore:
+    try:
         with np.load(path, allow_pickle=False) as z:
             d = {k: z[k] for k in z.files}
         meta = json.loads(str(d.pop("meta")))
@@ -156,13 +168,26 @@ def cached_store(cache_dir: Path, data_key: str, cfg: WindowConfig,
     path = Path(cache_dir) / f"windows-{digest}.npz"
     if path.is_file():
         try:
-            return load_store(path, key)
+            store = load_store(path, key)
+            with contextlib.suppress(OSError):
+                os.utime(path)  # last used: what pruning goes by
+            return store
         except UserError:  # a stale or damaged cache is rebuilt, never trusted
             path.unlink(missing_ok=True)
     scenes, ids = scenes_fn()
     store = FeatureStore.build(scenes, ids, cfg, progress=progress)
     try:
         save_store(store, path, key)
+        prune(Path(cache_dir))
     except OSError:  # a read-only cache folder: work without the cache
         pass
     return store
+
+
+def prune(cache_dir: Path, max_age_days: float = 30.0) -> list[Path]:
+    """Remove cached windows unused for `max_age_days` (those of edited code or deleted data sets); -> removed."""
+    cutoff = time.time() - max_age_days * 86400
+    old = [p for p in Path(cache_dir).glob("windows-*.npz") if p.stat().st_mtime < cutoff]
+    for p in old:
+        p.unlink(missing_ok=True)
+    return old

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import tempfile
 
 import numpy as np
 import pytest
@@ -10,6 +11,8 @@ import pytest
 # Two cores are shared by xdist workers: keep torch and BLAS from oversubscribing.
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("MKL_NUM_THREADS", "1")
+# Window caches of the tests go to a throw-away folder, not the user's ~/.cache.
+os.environ.setdefault("SIMHARNESS_CACHE_DIR", tempfile.mkdtemp(prefix="simharness-test-cache-"))
 
 from simharness.scene import AgentType, Scene  # noqa: E402
 

@@ -1,5 +1,7 @@
 """Windows, state space, neighbourhood / horizon selection and their grids, on hand-placed agents."""
 
+import os
+
 import numpy as np
 import pytest
 
@@ -8,7 +10,9 @@ from predictor.features import (
     FeatureStore,
     WindowConfig,
     concentration,
+    frame_concentration,
     frame_headings,
+    scene_arrays,
     select_neighbours,
     to_local,
     to_world,
@@ -148,3 +152,55 @@ def test_downsample_and_rate_checks():
         WindowConfig().step(0.3)
     p = to_local(np.array([[1.0, 2.0]]), np.zeros(2), np.array(0.4))
     np.testing.assert_allclose(to_world(p, np.zeros(2), np.array(0.4)), [[1.0, 2.0]], atol=1e-12)
+
+
+def test_concentration_of_all_frames_at_once_equals_frame_by_frame():
+    scene = _scene()
+    arr = scene_arrays(scene, CFG)
+    for t in range(scene.num_frames):
+        rows = np.flatnonzero(scene.valid[:, t])
+        np.testing.assert_array_equal(arr["conc"][rows, t],
+                                      concentration(arr["xy"][rows, t], arr["heading"][rows, t], CFG.concentration_box))
+    cols = np.arange(0, scene.num_frames, 3)
+    small = frame_concentration(arr["xy"], arr["heading"], scene.valid, cols, CFG.concentration_box, max_pairs=200)
+    np.testing.assert_array_equal(small[:, cols], arr["conc"][:, cols])  # many small chunks, same counts
+    assert arr["conc"].max() >= 1 and not small[:, 1].any()
+
+
+def test_cache_is_compact_and_never_trusted_when_stale_or_damaged(tmp_path):
+    from predictor.windows_cache import load_store, save_store
+
+    calls = []
+
+    def scenes_fn():
+        calls.append(1)
+        return [_scene(), _scene(theta=0.5)], ["s", "t"]
+
+    built = FeatureStore.cached(tmp_path, "data-a", CFG, scenes_fn, progress=False)
+    (path,) = tmp_path.glob("windows-*.npz")
+    assert path.stat().st_size < sum(v.nbytes for v in built.a.values()) / 2  # compact on disk (16x on real data)
+    again = FeatureStore.cached(tmp_path, "data-a", CFG, scenes_fn, progress=False)
+    assert len(calls) == 1
+    idx = np.arange(len(built))
+    for k in ("hist", "nbr", "hz", "fut", "nbr_cell", "hz_cell", "fut_valid"):
+        np.testing.assert_array_equal(getattr(built.batch(idx), k), getattr(again.batch(idx), k))
+    # other data or other windows: another key, a new build
+    FeatureStore.cached(tmp_path, "data-b", CFG, scenes_fn, progress=False)
+    FeatureStore.cached(tmp_path, "data-a", WindowConfig(max_neighbours=4), scenes_fn, progress=False)
+    assert len(calls) == 3 and len(list(tmp_path.glob("windows-*.npz"))) == 3
+    # a damaged file is rebuilt, silently and correctly
+    path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+    rebuilt = FeatureStore.cached(tmp_path, "data-a", CFG, scenes_fn, progress=False)
+    assert len(calls) == 4
+    np.testing.assert_array_equal(rebuilt.batch(idx).nbr, built.batch(idx).nbr)
+    # a readable file whose index points outside its data is refused with one clear line
+    built.a["target"] = built.a["target"].astype(np.int64) + len(built.a["valid"])
+    save_store(built, tmp_path / "bad.npz")
+    with pytest.raises(UserError, match="damaged windows cache"):
+        load_store(tmp_path / "bad.npz")
+    with pytest.raises(UserError, match="unreadable windows cache"):
+        FeatureStore.load(tmp_path / "missing.npz")
+    # files unused for a month go when a new one is written; those in use stay
+    os.utime(path, (0, 0))
+    FeatureStore.cached(tmp_path, "data-c", CFG, scenes_fn, progress=False)
+    assert not path.exists() and len(list(tmp_path.glob("windows-*.npz"))) == 3

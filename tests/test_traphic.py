@@ -78,3 +78,45 @@ def test_predictor_forecasts_in_world_frame_for_all_agents_at_once():
     assert list(fa.agent_id) == list(scene.agent_id)
     # the forecast starts near each agent's current position
     assert np.abs(fa.mean[:, 0] - scene.xy[:, -1]).max() < 30
+
+
+def test_constant_input_decoder_equals_nn_lstm_fed_every_step():
+    from torch import nn
+
+    from predictor.models.lstm import constant_input_lstm
+
+    torch.manual_seed(1)
+    lstm = nn.LSTM(7, 5, batch_first=True)
+    z = torch.randn(4, 7, requires_grad=True)
+    w = torch.randn(4, 6, 5)
+    want, _ = lstm(z[:, None].expand(-1, 6, -1))
+    got = constant_input_lstm(lstm, z, 6)
+    torch.testing.assert_close(got, want, atol=1e-5, rtol=1e-5)
+    grads_want = torch.autograd.grad((want * w).sum(), [z, *lstm.parameters()])
+    grads_got = torch.autograd.grad((got * w).sum(), [z, *lstm.parameters()])
+    for a, b in zip(grads_got, grads_want, strict=True):
+        torch.testing.assert_close(a, b, atol=1e-5, rtol=1e-4)
+    lstm64 = nn.LSTM(3, 2, batch_first=True).double()
+    assert torch.autograd.gradcheck(lambda x: constant_input_lstm(lstm64, x, 4),
+                                    (torch.randn(2, 3, dtype=torch.float64, requires_grad=True),))
+
+
+@pytest.mark.parametrize("layer", ["nbr", "hz"])
+def test_first_convolution_from_the_agents_equals_the_dense_map(store, layer):
+    """The model convolves the map agent by agent; the paper's form builds the map, then convolves it."""
+    torch.manual_seed(2)
+    model = build_model("traphic", {"history": store.H, "future": store.F})
+    batch = store.batch(np.arange(0, len(store), 7)).tensors()
+    enc, conv = getattr(model, layer), getattr(model, f"{layer}_conv")
+    grid = model.cfg.neighbour_grid if layer == "nbr" else model.cfg.horizon_grid
+    weight = model.hz_weight if layer == "hz" else None
+    omega, cell = batch[layer], batch[f"{layer}_cell"]
+    assert (cell >= 0).sum() > 20 and len(set(cell[cell >= 0].tolist())) > 5  # agents in many cells, edges too
+    with torch.no_grad():
+        got = model._conv_map(enc, omega, cell, grid, conv, weight)
+        dense = torch.zeros(cell.shape[0], model.cfg.encoder, grid[0] * grid[1])
+        for i, j in zip(*np.nonzero(cell.numpy() >= 0), strict=True):  # the map, cell by cell, as in the paper
+            h = model._encode(enc, omega[i, j][None])
+            dense[i, :, cell[i, j]] += (torch.nn.functional.elu(weight(h)) if weight is not None else h)[0]
+        want = conv(dense.view(-1, model.cfg.encoder, *grid))
+    torch.testing.assert_close(got, want, atol=2e-5, rtol=1e-4)

@@ -20,6 +20,10 @@ Ablations (section 5), by two switches:
 - horizon: the horizon layer with its weighting exists (True) or not.
 TraPHic-B = neither (a plain neighbour map of positions), TraPHic-He = heterogeneous only,
 TraPHic-Ho = horizon only, TraPHic = both.
+
+Computed the fast way, the same function: only present agents are encoded; each map's first convolution
+is summed from its agents' kernel taps (`_conv_map`); the decoder's constant input is projected once
+(models/lstm.py). Every neighbour is still encoded in its target's frame, once per (target, neighbour).
 """
 
 from __future__ import annotations
@@ -128,7 +132,7 @@ class TraPHic(nn.Module):
         gx, gy = grid
         flat = cell.reshape(-1)
         rows = torch.nonzero(flat >= 0).squeeze(1)
-        hj = self._encode(enc, omega.reshape(b * k, *omega.shape[2:]).index_select(0, rows))
+        hj = self._encode(enc, omega[rows // k, rows % k])  # one gather, whatever omega's strides
         if weight is not None:
             hj = fn.elu(weight(hj))
         conv1 = conv[0]
