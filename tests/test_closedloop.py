@@ -19,9 +19,11 @@ from simharness.closedloop import (
     prepare_spec,
     run_closed_loop,
     run_episode,
+    score_episode,
 )
 from simharness.io.parquet import Dataset
 from simharness.scenario import load_scenario
+from simharness.scene import AgentType, Scene
 
 # A slow, dense queue on a lane-less SUMO arterial; the ego enters at 8 m/s behind it. With
 # reaction "ignore" the background never reacts to the ego, so the oracle's replay is exact.
@@ -151,3 +153,21 @@ def test_lookahead_oracle_is_exact_on_highway_when_ignored():
         {**SHORT_HIGHWAY, "duration": 8.0})
     s = run_episode(EpisodeJob(spec, 1, "oracle", keep_scene=False))["scores"]
     assert s["online_samples"] > 0 and s["online_ade"] == pytest.approx(0.0, abs=1e-4)
+
+
+def test_collision_boxes_take_the_simulators_body_heading():
+    """Two cars 0.2 m apart side by side, edging sideways at walking pace: their heading of motion turns
+    30 degrees, their (SUMO, lane-aligned) bodies do not; only the bodies are scored."""
+    from simharness.closedloop import _Issued
+
+    t = 3
+    xy = np.array([[[-40.0, 0.0]] * t, [[0.0, 1.0]] * t, [[0.0, -1.0]] * t])
+    motion = np.zeros((3, t))
+    motion[1:] = np.radians(30.0)
+    scene = Scene(xy=xy, heading=motion, speed=np.ones((3, t)), valid=np.ones((3, t), bool),
+                  agent_id=np.array(["ego", "a", "b"]), agent_type=np.full(3, AgentType.CAR),
+                  length=np.full(3, 4.3), width=np.full(3, 1.8), dt=0.2, ego=0,
+                  extra={"sim_heading": np.zeros((3, t), np.float32)})
+    assert score_episode(scene, _Issued(), LoopConfig())["background_collisions"] == 0
+    scene_motion = scene.replace(extra={})  # a backend without sim_heading: its heading is the body's
+    assert score_episode(scene_motion, _Issued(), LoopConfig())["background_collisions"] == 1

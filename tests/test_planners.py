@@ -94,3 +94,30 @@ def test_plan_is_deterministic_and_vectorised_over_many_agents():
     a = SamplingPlanner(road=_road(6.0)).plan(now, _cv_forecast(now, sigma=0.5))
     b = SamplingPlanner(road=_road(6.0)).plan(now, _cv_forecast(now, sigma=0.5))
     assert a == b
+
+
+def test_uncertainty_counts_along_its_own_axis():
+    # A car 2.6 m to the left: lateral uncertainty (sigma_y) puts it in our path, longitudinal (sigma_x) does not.
+    now = _now(10.0, [(0.0, 2.6, 10.0)])
+    costs = {}
+    for name, (sx, sy) in {"along": (1.5, 0.1), "across": (0.1, 1.5)}.items():
+        fc = _cv_forecast(now, sigma=0.0)
+        fc.sigma_rho[..., 0], fc.sigma_rho[..., 1] = sx, sy
+        planner = SamplingPlanner(EgoLimits(max_speed=10.0), road=_road(6.0))
+        planner.plan(now, fc)
+        costs[name] = planner.last_cost[np.flatnonzero((planner._off == 0) & (planner._acc == 0))[0]]
+    assert costs["across"] > costs["along"] + 1.0
+
+
+def test_no_hard_stop_in_front_of_a_fast_follower_for_a_slow_leader():
+    # A slower car 30 m ahead in our line, a fast one 6 m behind: ease off, do not slam the brakes.
+    now = _now(10.0, [(30.0, 0.0, 6.0), (-10.3, 0.0, 10.0)])
+    planner = SamplingPlanner(EgoLimits(max_speed=14.0), road=_road(1.5))
+    cmd = planner.plan(now, _cv_forecast(now))
+    assert cmd.acceleration > -4.5
+    # Without the follower the same leader is no reason for a hard stop either, but the follower's term is live:
+    hard = np.flatnonzero((planner._acc == -7.0) & (planner._off == 0))[0]
+    alone = SamplingPlanner(EgoLimits(max_speed=14.0), road=_road(1.5))
+    ahead_only = _now(10.0, [(30.0, 0.0, 6.0)])
+    alone.plan(ahead_only, _cv_forecast(ahead_only))
+    assert planner.last_cost[hard] > alone.last_cost[hard] + 5.0

@@ -145,3 +145,32 @@ def test_at_fault_rule_on_three_contacts():
     fault2 = safety.ego_at_fault(onsets, xy2, vel2, np.arctan2(vel2[..., 1], vel2[..., 0]), np.full(4, 1.8),
                                  np.ones((4, 1), bool), ego=0)
     assert fault2[1, 0]
+
+
+def _queue(ego_speed: np.ndarray, leader_gap: float | None) -> tuple:
+    """Ego (row 0) on +x with the given speed profile (T,), a follower 8 m behind at 8 m/s, an optional
+    stopped leader `leader_gap` m ahead (centre to centre); frames 0.2 s apart."""
+    t = ego_speed.size
+    x = np.concatenate([[0.0], np.cumsum(ego_speed[1:] * 0.2)])
+    rows = [np.stack([x, 0 * x], -1), np.stack([-8.0 + 8.0 * 0.2 * np.arange(t), np.zeros(t)], -1)]
+    speed = [ego_speed, np.full(t, 8.0)]
+    if leader_gap is not None:
+        rows.append(np.stack([np.full(t, leader_gap), np.zeros(t)], -1))
+        speed.append(np.zeros(t))
+    n = len(rows)
+    return (np.stack(rows), np.stack(speed), np.zeros((n, t)), np.full(n, 4.0), np.full(n, 1.8),
+            np.ones((n, t), bool))
+
+
+def test_phantom_braking_and_rear_end_fault():
+    brake = np.array([8.0, 8.0, 8.0, 6.0, 4.0, 2.0, 0.0, 0.0, 0.0, 0.0])
+    for leader, expect in ((None, True), (12.0, False)):
+        xy, speed, heading, length, width, valid = _queue(brake, leader)
+        phantom = safety.phantom_braking(xy, speed, heading, length, width, valid, ego=0, dt=0.2)
+        assert phantom[6:].any() == expect, leader  # braked then stood, with (not) a stopped car ahead
+        assert not phantom[:3].any()  # cruising
+        onsets = np.zeros(valid.shape, bool)
+        onsets[1, 7] = True  # the follower hits the ego from behind at frame 7
+        vel = np.stack([speed, np.zeros_like(speed)], -1)
+        fault = safety.ego_at_fault(onsets, xy, vel, heading, width, valid, 0, phantom=phantom)
+        assert fault[1, 7] == expect
