@@ -25,7 +25,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
-from simharness.metrics.collisions import collision_events  # noqa: E402
+from simharness.metrics.collisions import box_heading, collision_events  # noqa: E402
 from simharness.scenario import load_scenario  # noqa: E402
 from simharness.scene import AgentType  # noqa: E402
 from simharness.sim import make_simulator, scene_from_frames  # noqa: E402
@@ -104,7 +104,7 @@ def scenario_figures(seeds: list[int]) -> dict:
         sim.close()
         sc = scene_from_frames(frames, spec.dt, {"scenario": spec.name})
         scene0 = scene0 or sc
-        ev = collision_events(sc.xy, sc.heading, sc.length, sc.width, sc.valid)
+        ev = collision_events(sc.xy, box_heading(sc), sc.length, sc.width, sc.valid)
         peds = (sc.agent_type[ev[:, 1]] == AgentType.PEDESTRIAN).astype(int) + \
                (sc.agent_type[ev[:, 2]] == AgentType.PEDESTRIAN).astype(int)
         totals["vv"] += int((peds == 0).sum())

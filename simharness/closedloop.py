@@ -45,7 +45,7 @@ from typing import Any
 import numpy as np
 
 from simharness.errors import UserError
-from simharness.metrics import comfort, displacement, safety
+from simharness.metrics import collisions, comfort, displacement, safety
 from simharness.planners import (
     BackgroundPlanner,
     ConstantSpeedPlanner,
@@ -321,17 +321,6 @@ def _slug(name: str) -> str:
 
 
 # ---------------------------------------------------------------------- scoring
-def box_heading(scene: Scene) -> np.ndarray:
-    """(N, T) rad: the heading the simulator's own bodies have, which collision boxes must use.
-
-    SUMO's sub-lane model moves lane-aligned bodies sideways: its recorded heading of motion turns by
-    atan(lateral / forward speed), 30 degrees for a car edging over at walking pace, which no body
-    does; boxes turned that way overlap neighbours SUMO (and the `sim_heading` boxes) keep apart.
-    Backends without `sim_heading` (highway) record the body heading itself.
-    """
-    return scene.extra["sim_heading"] if "sim_heading" in scene.extra else scene.heading
-
-
 def score_episode(scene: Scene, issued: _Issued, config: LoopConfig) -> dict[str, Any]:
     """Per-episode figures from the recorded Scene and the forecasts issued (see `SCALARS`)."""
     e = scene.ego
@@ -345,7 +334,7 @@ def score_episode(scene: Scene, issued: _Issued, config: LoopConfig) -> dict[str
         out["online_by_type"] = {}
         return out
     xy, hd, ln, wd, va = scene.xy, scene.heading, scene.length, scene.width, scene.valid
-    bh = box_heading(scene)
+    bh = collisions.box_heading(scene)
     contact = safety.ego_contact(xy, bh, ln, wd, va, e)
     # Overlaps the simulator created when it placed the ego are its doing, not the ego's: set apart.
     first = int(np.argmax(va[e]))

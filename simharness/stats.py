@@ -18,7 +18,7 @@ from scipy.spatial import cKDTree
 from tqdm import tqdm
 
 from simharness.io.parquet import Dataset
-from simharness.metrics.collisions import collision_events
+from simharness.metrics.collisions import box_heading, collision_events
 from simharness.scene import AgentType, Scene
 from simharness.sim.base import RoadGeometry
 
@@ -132,7 +132,7 @@ def dataset_stats(path: Path, progress: bool = False) -> dict[str, Any]:
         events = scene.meta.get("events", [])
         sim_collisions += sum(e.get("kind") == "collision" for e in events)
         teleports += sum(e.get("kind") == "teleport" for e in events)
-        hits = collision_events(scene.xy, scene.heading, scene.length, scene.width, valid)
+        hits = collision_events(scene.xy, box_heading(scene), scene.length, scene.width, valid)
         kinds = pair_kind(scene.agent_type[hits[:, 1]], scene.agent_type[hits[:, 2]])
         for k in box:
             box[k] += int((kinds == k).sum())
@@ -182,8 +182,9 @@ def dataset_stats(path: Path, progress: bool = False) -> dict[str, Any]:
             "box_overlap": box_total,
             "box_overlap_by_kind": box,
             "rate_per_1000_agent_min": {"simulator": rate(sim_collisions), "box_overlap": rate(box_total)},
-            "note": "box_overlap: oriented-box overlaps computed from the data (vehicle-vehicle plus "
-                    "vehicle-pedestrian, each contact spell once); simulator: events the simulator reported",
+            "note": "box_overlap: oriented-box overlaps computed from the data at the bodies' heading "
+                    "(sim_heading where recorded; vehicle-vehicle plus vehicle-pedestrian, each contact spell "
+                    "once); simulator: events the simulator reported",
         },
         "teleports": teleports,
     }

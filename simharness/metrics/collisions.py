@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from simharness.scene import Scene
+
 
 def box_corners(xy: np.ndarray, heading: np.ndarray, length: np.ndarray, width: np.ndarray) -> np.ndarray:
     """Rectangle corners.
@@ -102,3 +104,14 @@ def collision_events(
         events += [(f, a, b) for a, b in sorted(now - prev)]
         prev = now
     return np.asarray(events, dtype=int).reshape(-1, 3)
+
+
+def box_heading(scene: Scene) -> np.ndarray:
+    """(N, T) rad: the heading the simulator's own bodies have, which collision boxes must use.
+
+    SUMO's sub-lane model moves lane-aligned bodies sideways: its recorded heading of motion turns by
+    atan(lateral / forward speed), 30 degrees for a car edging over at walking pace, which no body
+    does; boxes turned that way overlap neighbours SUMO (and the `sim_heading` boxes) keep apart.
+    Backends without `sim_heading` (highway) record the body heading itself.
+    """
+    return scene.extra["sim_heading"] if "sim_heading" in scene.extra else scene.heading
