@@ -14,6 +14,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 import tempfile
@@ -106,8 +107,9 @@ def main() -> None:
           f"{bytes_per_scene / frames_per_scene:.1f} B each)")
     print(f"  1M scenes                  {SCENES * core_s / 3600:10,.0f} core-hours, "
           f"{SCENES * per_scene / 1e9:,.0f} GB, {SCENES * frames_per_scene / 1e9:,.1f} billion agent-frames")
-    print(f"  cores for one day          {SCENES * core_s / DAY_S:10,.0f} (e.g. {SCENES * core_s / DAY_S / 64:,.0f} "
-          f"nodes of 64 cores), manifest {SCENES * manifest_per_scene / 1e6:,.0f} MB rewritten after each scene "
+    cores = math.ceil(SCENES * core_s / DAY_S)
+    print(f"  cores for one day          {cores:10,d} (e.g. {math.ceil(cores / 64):,d} "
+          f"node(s) of 64 cores), manifest {SCENES * manifest_per_scene / 1e6:,.0f} MB rewritten after each scene "
           "(split a run that large into data sets of ~10k scenes)")
 
 
