@@ -160,20 +160,24 @@ def _version() -> str:
     return __version__
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+def run_guarded(job: Callable[[], int | None], prog: str = "simharness") -> int:
+    """Run `job`; a user's mistake or a dead simulator becomes one line on stderr and an exit status."""
     try:
-        return int(args.func(args) or 0)
+        return int(job() or 0)
     except UserError as e:
-        print(f"simharness: error: {e}", file=sys.stderr)
+        print(f"{prog}: error: {e}", file=sys.stderr)
         return 2
     except SimulatorError as e:
-        print(f"simharness: simulator failed: {e}", file=sys.stderr)
+        print(f"{prog}: simulator failed: {e}", file=sys.stderr)
         return 3
     except KeyboardInterrupt:
-        print("simharness: interrupted; completed shards are kept, rerun to finish", file=sys.stderr)
+        print(f"{prog}: interrupted; completed shards are kept, rerun to finish", file=sys.stderr)
         return 130
 
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    return run_guarded(lambda: args.func(args))
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -17,7 +17,8 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from simharness.errors import SimulatorError, UserError
+from simharness.cli import run_guarded
+from simharness.errors import SimulatorError
 from simharness.evaluation import evaluate
 from simharness.evaluation import format_table as format_eval_table
 from simharness.generation import generate
@@ -35,53 +36,51 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--duration", type=float, default=30.0, help="recorded seconds per scene")
     p.add_argument("--workers", type=int, default=2)
     args = p.parse_args(argv)
+    return run_guarded(lambda: run_demo(args), prog="demo")
+
+
+def run_demo(args: argparse.Namespace) -> int:
+    """The steps, in order; errors propagate to `run_guarded`."""
     out: Path = args.out
-    try:
-        # 1. data: a small dense, heterogeneous, lane-less data set from SUMO
-        spec = load_scenario(SCENARIO).with_overrides({"duration": args.duration})
-        data = out / "data" / SCENARIO
-        print(f"[1/5] generating {args.seeds} scenes of {SCENARIO} ({args.duration:g} s each) into {data}")
-        run = generate(spec, list(range(args.seeds)), data, workers=args.workers)
-        if run["failed"]:
-            raise SimulatorError(f"seeds {sorted(run['failed'])} failed: {next(iter(run['failed'].values()))}")
-        print(f"      {run['agent_frames']:,} agent-frames in {run['seconds']:.1f} s "
-              f"({run['agent_frames_per_s']:,.0f}/s), {run['skipped']} scenes already there")
+    # 1. data: a small dense, heterogeneous, lane-less data set from SUMO
+    spec = load_scenario(SCENARIO).with_overrides({"duration": args.duration})
+    data = out / "data" / SCENARIO
+    print(f"[1/5] generating {args.seeds} scenes of {SCENARIO} ({args.duration:g} s each) into {data}")
+    run = generate(spec, list(range(args.seeds)), data, workers=args.workers)
+    if run["failed"]:
+        raise SimulatorError(f"seeds {sorted(run['failed'])} failed: {next(iter(run['failed'].values()))}")
+    print(f"      {run['agent_frames']:,} agent-frames in {run['seconds']:.1f} s "
+          f"({run['agent_frames_per_s']:,.0f}/s), {run['skipped']} scenes already there")
 
-        # 2. its figures, in the form of the TraPHic paper's Table 1
-        print("[2/5] data set figures")
-        stats = dataset_stats(data)
-        print(format_table(stats))
-        (out / "stats.json").write_text(json.dumps(stats, indent=1, sort_keys=True) + "\n")
+    # 2. its figures, in the form of the TraPHic paper's Table 1
+    print("[2/5] data set figures")
+    stats = dataset_stats(data)
+    print(format_table(stats))
+    (out / "stats.json").write_text(json.dumps(stats, indent=1, sort_keys=True) + "\n")
 
-        # 3. one frame top-down
-        figure = write_frame_figure(data, out / "frame.png")
-        print(f"[3/5] figure: {figure}")
+    # 3. one frame top-down
+    figure = write_frame_figure(data, out / "frame.png")
+    print(f"[3/5] figure: {figure}")
 
-        # 4. open loop: the shipped TraPHic against constant velocity on the fresh scenes
-        print("[4/5] open loop: shipped TraPHic vs constant velocity (all scenes of the fresh data set)")
-        openloop = {}
-        for name in ("traphic", "const-vel"):
-            openloop[name] = evaluate(data, load_predictor(name), "traphic", split="all",
-                                      figure_dir=out / "openloop" / name, progress=False, name=name)
-            (out / "openloop" / name / "metrics.json").write_text(json.dumps(openloop[name], indent=1) + "\n")
-        table = format_eval_table(openloop)
-        print(table)
+    # 4. open loop: the shipped TraPHic against constant velocity on the fresh scenes
+    print("[4/5] open loop: shipped TraPHic vs constant velocity (all scenes of the fresh data set)")
+    openloop = {}
+    for name in ("traphic", "const-vel"):
+        openloop[name] = evaluate(data, load_predictor(name), "traphic", split="all",
+                                  figure_dir=out / "openloop" / name, progress=False, name=name)
+        (out / "openloop" / name / "metrics.json").write_text(json.dumps(openloop[name], indent=1) + "\n")
+    table = format_eval_table(openloop)
+    print(table)
 
-        # 5. closed loop: an ego driven on TraPHic, constant-velocity and oracle forecasts, and with none
-        from simharness.closedloop import demo_closed_loop
+    # 5. closed loop: an ego driven on TraPHic, constant-velocity and oracle forecasts, and with none
+    from simharness.closedloop import demo_closed_loop
 
-        print("[5/5] closed loop: egos on TraPHic, constant velocity, oracle and no prediction")
-        report = demo_closed_loop(out, workers=args.workers, extra_md=(
-            f"![one frame of the data set]({figure.name})\n\n## Open loop (shipped TraPHic vs constant velocity)"
-            f"\n\n```\n{table}\n```\n\n![RMSE per horizon second](openloop/traphic/rmse_curve.png)\n"
-            "![forecasts](openloop/traphic/forecasts.png)\n"))
-        print(f"      report: {report}")
-    except UserError as e:
-        print(f"demo: error: {e}", file=sys.stderr)
-        return 2
-    except SimulatorError as e:
-        print(f"demo: simulator failed: {e}", file=sys.stderr)
-        return 3
+    print("[5/5] closed loop: egos on TraPHic, constant velocity, oracle and no prediction")
+    report = demo_closed_loop(out, workers=args.workers, extra_md=(
+        f"![one frame of the data set]({figure.name})\n\n## Open loop (shipped TraPHic vs constant velocity)"
+        f"\n\n```\n{table}\n```\n\n![RMSE per horizon second](openloop/traphic/rmse_curve.png)\n"
+        "![forecasts](openloop/traphic/forecasts.png)\n"))
+    print(f"      report: {report}")
     print("\nwhere things are:")
     print(f"  data set     {data}  (manifest.json + one Parquet shard per scene; runs.jsonl logs each run)")
     print(f"  stats        {out / 'stats.json'}  (also: simharness stats {data})")

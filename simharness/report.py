@@ -275,7 +275,8 @@ def write_report(run_dir: Path | str, title: str = "Closed-loop report", extra_m
         lines += [extra_md, ""]
     if scores:
         first = next(iter(scores.values()))
-        lines += [f"Scenario `{first.get('scenario')}`, background reaction `{first.get('reaction')}`, "
+        lines += ["## Closed loop", "",
+                  f"Scenario `{first.get('scenario')}`, background reaction `{first.get('reaction')}`, "
                   f"seeds {first.get('seeds')}; mean [95% bootstrap CI] over episodes.", ""]
 
         def cell(d: dict) -> str:
