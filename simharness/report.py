@@ -19,7 +19,7 @@ from matplotlib.axes import Axes  # noqa: E402
 from matplotlib.collections import LineCollection, PolyCollection  # noqa: E402
 from matplotlib.patches import Patch  # noqa: E402
 
-from simharness.metrics.collisions import box_corners  # noqa: E402
+from simharness.metrics.collisions import box_corners, box_heading  # noqa: E402
 from simharness.scene import AgentType, Scene  # noqa: E402
 from simharness.sim.base import RoadGeometry  # noqa: E402
 
@@ -122,7 +122,7 @@ def plot_frame(scene: Scene, frame: int, path: Path | str, road: RoadGeometry | 
     fig, ax = plt.subplots(figsize=(12, 4.5), dpi=120)
     draw_road(ax, road)
     draw_trails(ax, scene, frame, trail_s)
-    draw_agents(ax, pts, scene.heading[valid, frame], scene.length[valid], scene.width[valid],
+    draw_agents(ax, pts, box_heading(scene)[valid, frame], scene.length[valid], scene.width[valid],
                 scene.agent_type[valid], ego=int(np.flatnonzero(np.flatnonzero(valid) == scene.ego)[0])
                 if scene.ego >= 0 and valid[scene.ego] else -1)
     if window is not None:
@@ -163,7 +163,8 @@ def animate_episode(scene: Scene, path: Path | str, road: RoadGeometry | None = 
     e = scene.ego
     frames = np.flatnonzero(scene.valid[e]) if e >= 0 else np.arange(scene.num_frames)
     frames = frames[:: max(1, int(np.ceil(len(frames) / max_frames)))]
-    contact = ego_contact(scene.xy, scene.heading, scene.length, scene.width, scene.valid, e) if e >= 0 else None
+    body = box_heading(scene)  # the bodies' heading, as scored (SUMO's boxes stay lane-aligned)
+    contact = ego_contact(scene.xy, body, scene.length, scene.width, scene.valid, e) if e >= 0 else None
     issued = np.asarray(forecast_frames or [], int)
     fig, ax = plt.subplots(figsize=(8, 3.2), dpi=90)
     images = []
@@ -177,7 +178,7 @@ def animate_episode(scene: Scene, path: Path | str, road: RoadGeometry | None = 
         if hit is not None and e in rows:
             hit = hit.copy()
             hit[rows == e] = contact[:, f].any()
-        draw_agents(ax, scene.xy[rows, f], scene.heading[rows, f], scene.length[rows], scene.width[rows],
+        draw_agents(ax, scene.xy[rows, f], body[rows, f], scene.length[rows], scene.width[rows],
                     scene.agent_type[rows], ego=int(np.flatnonzero(rows == e)[0]) if e in rows else -1, highlight=hit)
         k = np.searchsorted(issued, f, side="right") - 1
         if forecasts and k >= 0:
@@ -356,7 +357,7 @@ def plot_forecasts(scene: Scene, now: int, rows: np.ndarray, history: np.ndarray
         ell = ell.reshape(len(rows), len(idx), *ell.shape[1:])
     for m, ax in enumerate(axes[:, 0]):
         draw_road(ax, road)
-        draw_agents(ax, scene.xy[valid, now], scene.heading[valid, now], scene.length[valid], scene.width[valid],
+        draw_agents(ax, scene.xy[valid, now], box_heading(scene)[valid, now], scene.length[valid], scene.width[valid],
                     scene.agent_type[valid], highlight=np.flatnonzero(valid) == rows[m])
         ax.add_collection(LineCollection(list(history), colors="black", linewidths=1.0, alpha=0.4, zorder=4))
         ax.plot(*history[m].T, color="black", lw=1.6, zorder=5, label="history")
