@@ -13,35 +13,22 @@ decoders (the original needs lane ids); the grid is the same lane-less grid TraP
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
 
 import torch
 from torch import nn
 from torch.nn import functional as fn
 
+from predictor.models.config import ModelConfig
 from predictor.models.rnn_ed import gaussian_head, positions
 
 
 @dataclasses.dataclass(frozen=True)
-class CSLSTMConfig:
+class CSLSTMConfig(ModelConfig):
     """Sizes as in the original (embedding 32, encoder 64, decoder 128, convolutions 64 and 16 channels)."""
 
-    history: int = 15
-    future: int = 25
-    embed: int = 32
-    encoder: int = 64
-    decoder: int = 128
     dyn_embed: int = 32
     conv1: int = 64
     conv2: int = 16
-    neighbour_grid: tuple[int, int] = (13, 5)
-    pos_scale: float = 10.0
-    max_neighbours: int = 12
-    max_horizon: int = 6
-    horizon_grid: tuple[int, int] = (7, 5)
-
-    def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
 
 
 class CSLSTM(nn.Module):

@@ -11,13 +11,13 @@ Also here, because every baseline shares them: `positions` (the position inputs 
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
 
 import torch
 from torch import nn
 from torch.nn import functional as fn
 
 from predictor.features import FEATURES
+from predictor.models.config import ModelConfig
 
 _XY = [FEATURES.index("x"), FEATURES.index("y")]
 _PRESENT = FEATURES.index("present")
@@ -36,22 +36,8 @@ def gaussian_head(o: torch.Tensor, scale: float) -> torch.Tensor:
 
 
 @dataclasses.dataclass(frozen=True)
-class RNNEDConfig:
+class RNNEDConfig(ModelConfig):
     """Sizes; the window fields (history ... horizon_grid) are filled in by training and unused here."""
-
-    history: int = 15
-    future: int = 25
-    embed: int = 32
-    encoder: int = 64
-    decoder: int = 128
-    pos_scale: float = 10.0
-    max_neighbours: int = 12
-    max_horizon: int = 6
-    neighbour_grid: tuple[int, int] = (13, 5)
-    horizon_grid: tuple[int, int] = (7, 5)
-
-    def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
 
 
 class RNNED(nn.Module):

@@ -21,24 +21,19 @@ A GAN gives samples, not a density: `forward` returns one sample as the mean wit
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
 
 import torch
 from torch import nn
 from torch.nn import functional as fn
 
+from predictor.models.config import ModelConfig
 from predictor.models.rnn_ed import positions
 
 
 @dataclasses.dataclass(frozen=True)
-class SocialGANConfig:
+class SocialGANConfig(ModelConfig):
     """Sizes (smaller than the original's 1024-wide MLPs, to train on a CPU), noise, loss settings."""
 
-    history: int = 15
-    future: int = 25
-    embed: int = 32
-    encoder: int = 64
-    decoder: int = 128
     mlp: int = 256
     bottleneck: int = 256
     noise_dim: int = 8
@@ -47,14 +42,6 @@ class SocialGANConfig:
     eval_samples: int = 20
     eval_seed: int = 0
     disp_scale: float = 2.0
-    pos_scale: float = 10.0
-    max_neighbours: int = 12
-    max_horizon: int = 6
-    neighbour_grid: tuple[int, int] = (13, 5)
-    horizon_grid: tuple[int, int] = (7, 5)
-
-    def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
 
 
 def _mlp(*sizes: int) -> nn.Sequential:

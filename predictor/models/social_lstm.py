@@ -14,35 +14,22 @@ other agent's hidden state to its cell of the agent's grid.
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
 
 import torch
 from torch import nn
 from torch.nn import functional as fn
 
+from predictor.models.config import ModelConfig
 from predictor.models.rnn_ed import gaussian_head, positions
 
 
 @dataclasses.dataclass(frozen=True)
-class SocialLSTMConfig:
+class SocialLSTMConfig(ModelConfig):
     """Sizes and the pooling grid: `grid` cells (along, lateral) over +-`grid_extent` metres around each agent."""
 
-    history: int = 15
-    future: int = 25
-    embed: int = 32
-    encoder: int = 64
-    decoder: int = 128
     social_embed: int = 64
     grid: tuple[int, int] = (8, 4)
     grid_extent: tuple[float, float] = (20.0, 6.0)
-    pos_scale: float = 10.0
-    max_neighbours: int = 12
-    max_horizon: int = 6
-    neighbour_grid: tuple[int, int] = (13, 5)
-    horizon_grid: tuple[int, int] = (7, 5)
-
-    def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
 
 
 def social_pairs(pos: torch.Tensor, present: torch.Tensor, grid: tuple[int, int],

@@ -29,13 +29,13 @@ is summed from its agents' kernel taps (`_conv_map`); the decoder's constant inp
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
 
 import torch
 from torch import nn
 from torch.nn import functional as fn
 
 from predictor.features import FEATURES, HOMOGENEOUS_FEATURES, NUM_FEATURES
+from predictor.models.config import ModelConfig
 from predictor.models.lstm import constant_input_lstm
 
 # Fixed input scales (metres, m/s, counts) so every feature is of order one.
@@ -44,27 +44,14 @@ _SCALE = {"x": 10.0, "y": 10.0, "vx": 10.0, "vy": 10.0, "concentration": 5.0, "l
 
 
 @dataclasses.dataclass(frozen=True)
-class TraPHicConfig:
+class TraPHicConfig(ModelConfig):
     """Sizes and ablation switches; serialised as JSON beside the weights."""
 
     horizon: bool = True
     heterogeneous: bool = True
-    history: int = 15
-    future: int = 25
-    embed: int = 32
-    encoder: int = 64
-    decoder: int = 128
     conv1: int = 64
     conv2: int = 16
-    neighbour_grid: tuple[int, int] = (13, 5)
-    horizon_grid: tuple[int, int] = (7, 5)
-    max_neighbours: int = 12
-    max_horizon: int = 6
-    pos_scale: float = 10.0
     step_scale: float = 2.0
-
-    def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
 
 
 def _encoder(d_in: int, cfg: TraPHicConfig) -> nn.ModuleDict:

@@ -1,0 +1,30 @@
+"""The configuration every learned model shares: window lengths, layer sizes, neighbour grids."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+
+@dataclasses.dataclass(frozen=True)
+class ModelConfig:
+    """Fields common to all models; the window fields (history ... horizon_grid) are filled in by training.
+
+    history, future: frames; embed, encoder, decoder: layer widths; pos_scale: metres per unit of the
+    position inputs; max_neighbours, max_horizon: agents kept in the ellipse and the semi-ellipse;
+    neighbour_grid, horizon_grid: (along, lateral) cells of the two maps.
+    """
+
+    history: int = 15
+    future: int = 25
+    embed: int = 32
+    encoder: int = 64
+    decoder: int = 128
+    pos_scale: float = 10.0
+    max_neighbours: int = 12
+    max_horizon: int = 6
+    neighbour_grid: tuple[int, int] = (13, 5)
+    horizon_grid: tuple[int, int] = (7, 5)
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
