@@ -4,8 +4,7 @@ The target's positions (x, y) in its own frame are embedded, encoded by an LSTM,
 state, repeated over the horizon, drives an LSTM decoder that emits a bivariate Gaussian per future
 step. No neighbours: it measures how far a model gets without interactions.
 
-Also here, because every baseline shares them: `positions` (the position inputs of any Omega tensor) and
-`gaussian_head` (decoder outputs -> (mu_x, mu_y, sigma_x, sigma_y, rho) in metres).
+Also here, because every baseline shares it: `positions` (the position inputs of any Omega tensor).
 """
 
 from __future__ import annotations
@@ -18,6 +17,7 @@ from torch.nn import functional as fn
 
 from predictor.features import FEATURES
 from predictor.models.config import ModelConfig
+from predictor.models.gaussian import gaussian_head
 
 _XY = [FEATURES.index("x"), FEATURES.index("y")]
 _PRESENT = FEATURES.index("present")
@@ -26,13 +26,6 @@ _PRESENT = FEATURES.index("present")
 def positions(omega: torch.Tensor, scale: float) -> tuple[torch.Tensor, torch.Tensor]:
     """Omega (..., H, D) -> (positions (..., H, 2) divided by `scale`, present (..., H) bool)."""
     return omega[..., _XY] / scale, omega[..., _PRESENT] > 0.5
-
-
-def gaussian_head(o: torch.Tensor, scale: float) -> torch.Tensor:
-    """Raw outputs (..., 5) -> (mu_x, mu_y, sigma_x, sigma_y, rho) (..., 5): metres, sigma > 0, |rho| < 1."""
-    mu = o[..., :2] * scale
-    sigma = (fn.softplus(o[..., 2:4]) + 1e-3) * scale
-    return torch.cat([mu, sigma, torch.tanh(o[..., 4:5])], -1)
 
 
 @dataclasses.dataclass(frozen=True)

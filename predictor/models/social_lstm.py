@@ -20,7 +20,8 @@ from torch import nn
 from torch.nn import functional as fn
 
 from predictor.models.config import ModelConfig
-from predictor.models.rnn_ed import gaussian_head, positions
+from predictor.models.gaussian import gaussian_head
+from predictor.models.rnn_ed import positions
 
 
 @dataclasses.dataclass(frozen=True)

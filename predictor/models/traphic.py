@@ -36,6 +36,7 @@ from torch.nn import functional as fn
 
 from predictor.features import FEATURES, HOMOGENEOUS_FEATURES, NUM_FEATURES
 from predictor.models.config import ModelConfig
+from predictor.models.gaussian import gaussian_head
 from predictor.models.lstm import constant_input_lstm
 
 # Fixed input scales (metres, m/s, counts) so every feature is of order one.
@@ -149,6 +150,4 @@ class TraPHic(nn.Module):
         z = torch.cat(parts, -1)
         o = self.out(constant_input_lstm(self.decoder, z, cfg.future))  # z at every step, projected once
         # Means as summed per-step displacements: a constant output is constant velocity, easy to start from.
-        mu = torch.cumsum(o[..., :2], 1) * cfg.step_scale
-        sigma = (fn.softplus(o[..., 2:4]) + 1e-3) * cfg.pos_scale
-        return torch.cat([mu, sigma, torch.tanh(o[..., 4:5])], -1)
+        return gaussian_head(o, cfg.pos_scale, mu=torch.cumsum(o[..., :2], 1) * cfg.step_scale)
