@@ -19,7 +19,6 @@ import datetime
 import hashlib
 import json
 import math
-import os
 import sys
 import time
 import traceback
@@ -28,6 +27,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from simharness.errors import UserError
+from simharness.io.parquet import atomic_write_text
 
 if TYPE_CHECKING:
     from simharness.executors import JobResult
@@ -119,7 +119,7 @@ def run_method(job: MethodJob) -> dict[str, Any]:
     row["eval_s"] = round(time.perf_counter() - t1, 2)
     row["metrics"] = metrics
     out.mkdir(parents=True, exist_ok=True)
-    _write_text(out / "metrics.json", json.dumps(metrics, indent=1) + "\n")
+    atomic_write_text(out / "metrics.json", json.dumps(metrics, indent=1) + "\n")
     return row
 
 
@@ -299,12 +299,6 @@ def format_markdown(results: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def _write_text(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    tmp.write_text(text, encoding="utf-8")
-    os.replace(tmp, path)
-
-
 def write_results(results: dict[str, Any], out: Path) -> None:
     """results.json, results.md, rmse_curve.png and methods.png into `out` (each written whole, then renamed)."""
     from simharness.report import plot_method_bars, plot_rmse_curve
@@ -317,8 +311,8 @@ def write_results(results: dict[str, Any], out: Path) -> None:
                         title=f"RMSE per horizon second: {results.get('scenario') or Path(results['data']).name}")
         plot_method_bars({r["label"]: (r["metrics"]["ade_rmse"], r["metrics"]["fde_rmse"], r["train_s"])
                           for r in rows.values()}, out / "methods.png", units=units)
-    _write_text(out / "results.json", json.dumps(results, indent=1, default=str) + "\n")
-    _write_text(out / "results.md", format_markdown(results) + "\n")
+    atomic_write_text(out / "results.json", json.dumps(results, indent=1, default=str) + "\n")
+    atomic_write_text(out / "results.md", format_markdown(results) + "\n")
 
 
 def benchmark_command(args: argparse.Namespace) -> int:

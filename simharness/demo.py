@@ -22,6 +22,7 @@ from simharness.errors import SimulatorError
 from simharness.evaluation import evaluate
 from simharness.evaluation import format_table as format_eval_table
 from simharness.generation import generate
+from simharness.io.parquet import atomic_write_text
 from simharness.predictors import load_predictor
 from simharness.scenario import load_scenario
 from simharness.stats import dataset_stats, format_table, write_frame_figure
@@ -56,7 +57,7 @@ def run_demo(args: argparse.Namespace) -> int:
     print("[2/5] data set figures")
     stats = dataset_stats(data)
     print(format_table(stats))
-    (out / "stats.json").write_text(json.dumps(stats, indent=1, sort_keys=True) + "\n")
+    atomic_write_text(out / "stats.json", json.dumps(stats, indent=1, sort_keys=True) + "\n")
 
     # 3. one frame top-down
     figure = write_frame_figure(data, out / "frame.png")
@@ -68,7 +69,7 @@ def run_demo(args: argparse.Namespace) -> int:
     for name in ("traphic", "const-vel"):
         openloop[name] = evaluate(data, load_predictor(name), "traphic", split="all",
                                   figure_dir=out / "openloop" / name, progress=False, name=name)
-        (out / "openloop" / name / "metrics.json").write_text(json.dumps(openloop[name], indent=1) + "\n")
+        atomic_write_text(out / "openloop" / name / "metrics.json", json.dumps(openloop[name], indent=1) + "\n")
     table = format_eval_table(openloop)
     print(table)
 

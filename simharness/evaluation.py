@@ -10,13 +10,13 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from simharness.errors import UserError
+from simharness.io.parquet import atomic_write_text
 from simharness.metrics import displacement as dm
 from simharness.protocols import EvalProtocol, get_protocol, history_and_truth, prepare, windows
 from simharness.scene import AgentType, Predictor, Scene
@@ -161,9 +161,7 @@ def evaluate_command(args: argparse.Namespace) -> int:
     res = evaluate(args.data, predictor, get_protocol(args.protocol), split=args.split, figure_dir=out_dir, name=name,
                    test_scenes=getattr(args, "test_scenes", None))
     out_dir.mkdir(parents=True, exist_ok=True)
-    tmp = out_dir / f".metrics.json.tmp{os.getpid()}"
-    tmp.write_text(json.dumps(res, indent=1) + "\n", encoding="utf-8")
-    os.replace(tmp, out_dir / "metrics.json")
+    atomic_write_text(out_dir / "metrics.json", json.dumps(res, indent=1) + "\n")
     print(format_table({name: res}))
     secs = ", ".join(f"{v:.2f}" if v is not None else "n/a" for v in res["rmse_per_second"])
     print(f"RMSE per second ({res['units']}): {secs}")

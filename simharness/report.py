@@ -7,6 +7,7 @@ a file. Other modules add their figures here, one function each.
 
 from __future__ import annotations
 
+import io
 from pathlib import Path
 
 import matplotlib
@@ -19,6 +20,7 @@ from matplotlib.axes import Axes  # noqa: E402
 from matplotlib.collections import LineCollection, PolyCollection  # noqa: E402
 from matplotlib.patches import Patch  # noqa: E402
 
+from simharness.io.parquet import atomic_write_bytes, atomic_write_text  # noqa: E402
 from simharness.metrics.collisions import box_corners, box_heading  # noqa: E402
 from simharness.scene import AgentType, Scene  # noqa: E402
 from simharness.sim.base import RoadGeometry  # noqa: E402
@@ -39,10 +41,6 @@ EGO_COLOR = "#000000"
 
 def _save(fig: plt.Figure, path: Path) -> Path:
     """Lay out, write atomically (creating folders) and close a figure; returns its path."""
-    import io
-
-    from simharness.io.parquet import atomic_write_bytes
-
     fig.tight_layout()
     buf = io.BytesIO()
     fig.savefig(buf, format=path.suffix.lstrip(".") or "png")
@@ -304,9 +302,7 @@ def write_report(run_dir: Path | str, title: str = "Closed-loop report", extra_m
         for g in gifs[:4]:
             lines += [f"![episode]({link(g)})", ""]
     path = run_dir / "report.md"
-    tmp = path.with_name(".tmp-report.md")
-    tmp.write_text("\n".join(lines) + "\n", encoding="utf-8")
-    tmp.replace(path)
+    atomic_write_text(path, "\n".join(lines) + "\n")
     return path
 
 

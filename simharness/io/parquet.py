@@ -81,6 +81,11 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
         raise
 
 
+
+def atomic_write_text(path: Path, text: str) -> None:
+    """UTF-8 text through `atomic_write_bytes`."""
+    atomic_write_bytes(path, text.encode("utf-8"))
+
 def file_sha256(path: Path) -> str:
     h = hashlib.sha256()
     with open(path, "rb") as f:
