@@ -16,9 +16,6 @@ import argparse
 import csv
 import io
 import json
-import os
-import shutil
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -80,15 +77,11 @@ def export_tracknpred(dataset_dir: Path, out: Path) -> Path:
 
     Scene i of the data set (in manifest order) becomes dataset id i + 1. Refuses a non-empty `out`.
     """
-    from simharness.io.parquet import Dataset
+    from simharness.io.parquet import Dataset, atomic_folder
 
     data = Dataset(Path(dataset_dir))
     out = Path(out)
-    if out.exists() and (not out.is_dir() or any(out.iterdir())):
-        raise UserError(f"{out}: exists and is not empty; choose another output folder or remove it")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".tmp-{out.name}.", dir=out.parent))
-    try:
+    with atomic_folder(out) as tmp:
         index = io.StringIO()
         table = csv.writer(index, lineterminator="\n")
         table.writerow(["dsId", "id", "scene_id", "agent_id", "agent_type", "first_frame", "last_frame"])
@@ -109,12 +102,6 @@ def export_tracknpred(dataset_dir: Path, out: Path) -> Path:
         (tmp / EXPORT_INFO).write_text(json.dumps({"format": "tracknpred", "scenes": scenes}, indent=1,
                                                   sort_keys=True) + "\n")
         (tmp / "README.txt").write_text(_readme(len(data), units, rates))
-        if out.exists():
-            out.rmdir()
-        os.replace(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return out
 
 

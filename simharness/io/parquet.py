@@ -86,6 +86,32 @@ def atomic_write_text(path: Path, text: str) -> None:
     """UTF-8 text through `atomic_write_bytes`."""
     atomic_write_bytes(path, text.encode("utf-8"))
 
+@contextlib.contextmanager
+def atomic_folder(out: Path, overwrite: bool = False) -> Iterator[Path]:
+    """Build a folder under a temporary sibling name, yielded; rename it to `out` when the block completes.
+
+    An existing non-empty `out` is refused (UserError) unless `overwrite`, and then replaced only once the
+    new folder is complete; on any error the temporary folder is removed and `out` is left as it was.
+    """
+    out = Path(out)
+    if out.exists() and (not out.is_dir() or any(out.iterdir())) and not overwrite:
+        raise UserError(f"{out}: exists and is not empty; choose another output folder or remove it")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=TMP_PREFIX + out.name + ".", dir=out.parent))
+    try:
+        yield tmp
+        if out.exists():
+            old = out.with_name(f"{TMP_PREFIX}{out.name}.old")
+            shutil.rmtree(old, ignore_errors=True)
+            os.replace(out, old)
+            os.replace(tmp, out)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.replace(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+
 def file_sha256(path: Path) -> str:
     h = hashlib.sha256()
     with open(path, "rb") as f:
@@ -291,11 +317,7 @@ def write_dataset(scenes: Iterable[Scene], out: Path, info: dict[str, Any], over
     `overwrite` (then replaced only once the new one is complete).
     """
     out = Path(out)
-    if out.exists() and (not out.is_dir() or any(out.iterdir())) and not overwrite:
-        raise UserError(f"{out}: exists and is not empty; choose another output folder or remove it")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=TMP_PREFIX + out.name + ".", dir=out.parent))
-    try:
+    with atomic_folder(out, overwrite) as tmp:
         entries, seen = [], set()
         for i, scene in enumerate(scenes):
             scene_id = str(scene.meta.get("scene_id", f"scene-{i:06d}"))
@@ -306,17 +328,6 @@ def write_dataset(scenes: Iterable[Scene], out: Path, info: dict[str, Any], over
             rows = write_scene(scene, path, scene_id)
             entries.append(shard_entry(path, scene, scene_id, rows))
         write_manifest(tmp, build_manifest(entries, info))
-        if out.exists():
-            old = out.with_name(f"{TMP_PREFIX}{out.name}.old")
-            shutil.rmtree(old, ignore_errors=True)
-            os.replace(out, old)
-            os.replace(tmp, out)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return out
 
 
