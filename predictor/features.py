@@ -23,7 +23,6 @@ batch is a handful of numpy gathers. Inference builds a store of one frame by th
 from __future__ import annotations
 
 import dataclasses
-import math
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -123,12 +122,6 @@ def to_local(xy: np.ndarray, origin: np.ndarray, heading: np.ndarray) -> np.ndar
     c, s = np.cos(heading), np.sin(heading)
     d = xy - origin
     return np.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1]], -1)
-
-
-def rotate_to_local(v: np.ndarray, heading: np.ndarray) -> np.ndarray:
-    """Vectors into frames: v (..., 2), heading (...) -> (..., 2)."""
-    c, s = np.cos(heading), np.sin(heading)
-    return np.stack([c * v[..., 0] + s * v[..., 1], -s * v[..., 0] + c * v[..., 1]], -1)
 
 
 def to_world(local: np.ndarray, origin: np.ndarray, heading: np.ndarray) -> np.ndarray:
@@ -472,14 +465,3 @@ def _pad_left(scene: Scene, pad: int) -> Scene:
     return scene.replace(xy=np.pad(scene.xy, (*p2, (0, 0))), heading=np.pad(scene.heading, p2),
                          speed=np.pad(scene.speed, p2), valid=np.pad(scene.valid, p2),
                          extra={k: np.pad(v, p2) for k, v in scene.extra.items()}, frame0=scene.frame0 - pad)
-
-
-def sample_history(scene: Scene, step: int, frames: int) -> Scene:
-    """The last `frames` columns taken every `step` recorded frames, as a Scene with dt * step."""
-    cols = scene.num_frames - 1 - np.arange(frames - 1, -1, -1) * step
-    ok = cols >= 0
-    c = np.maximum(cols, 0)
-    valid = scene.valid[:, c] & ok
-    return scene.replace(xy=scene.xy[:, c], heading=scene.heading[:, c], speed=scene.speed[:, c], valid=valid,
-                         extra={k: v[:, c] for k, v in scene.extra.items()}, dt=scene.dt * step,
-                         frame0=int(math.floor((scene.frame0 + cols[0]) / step)))

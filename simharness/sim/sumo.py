@@ -51,10 +51,6 @@ TIME_TO_TELEPORT = 300.0
 CUT_IN_AHEAD = (1.0, 12.0)  # m between the ego's front and a passing vehicle's rear when it is told to cut in
 
 
-def sumo_version() -> str:
-    return str(libsumo.getVersion()[1])
-
-
 class SumoSimulator:
     """`Simulator` over libsumo; see the module doc. Use one per process and close it."""
 
