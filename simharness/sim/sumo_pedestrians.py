@@ -72,16 +72,12 @@ class Crossings:
         self._routes: set[str] = set()
         self._clock = 0.0
         self.look_ahead = spec.dt  # s of walking covered by one gap decision
-        self.walkers_prefix = "pedestrian."
 
     # ------------------------------------------------------------------ ids
     @staticmethod
     def public_id(vid: str) -> str:
         """The recorded id: a crosser is one SUMO vehicle per carriageway ("xped3.0", "xped3.1" -> "xped3")."""
         return vid.rsplit(".", 1)[0] if vid.startswith(PREFIX) else vid
-
-    def is_pedestrian(self, vid: str) -> bool:
-        return vid.startswith(PREFIX) or vid.startswith(self.walkers_prefix)
 
     def override_motion(self, ids: tuple[str, ...], heading: np.ndarray, speed: np.ndarray, dt: float) -> None:
         """Crossers move sideways while SUMO reports them standing: record their real motion.
