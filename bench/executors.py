@@ -24,7 +24,7 @@ from pathlib import Path
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 from simharness.executors import LocalExecutor, RayExecutor, import_ray, start_local_ray  # noqa: E402
-from simharness.generation import generate  # noqa: E402
+from simharness.generation import MANIFEST_EVERY_S, generate  # noqa: E402
 from simharness.scenario import load_scenario  # noqa: E402
 
 SCENARIO = "sumo_arterial_dense"
@@ -109,8 +109,8 @@ def main() -> None:
           f"{SCENES * per_scene / 1e9:,.0f} GB, {SCENES * frames_per_scene / 1e9:,.1f} billion agent-frames")
     cores = math.ceil(SCENES * core_s / DAY_S)
     print(f"  cores for one day          {cores:10,d} (e.g. {math.ceil(cores / 64):,d} "
-          f"node(s) of 64 cores), manifest {SCENES * manifest_per_scene / 1e6:,.0f} MB rewritten after each scene "
-          "(split a run that large into data sets of ~10k scenes)")
+          f"node(s) of 64 cores), manifest {SCENES * manifest_per_scene / 1e6:,.0f} MB, refreshed every "
+          f"{MANIFEST_EVERY_S:g} s of a run (split a run that large into data sets of ~10k scenes)")
 
 
 if __name__ == "__main__":

@@ -138,6 +138,9 @@ def _existing_entries(spec: ScenarioSpec, out: Path) -> dict[int, dict[str, Any]
     return entries
 
 
+MANIFEST_EVERY_S = 10.0  # how often a running generation refreshes manifest.json
+
+
 def generate(spec: ScenarioSpec, seeds: Sequence[int], out: Path, workers: int = 2, executor: str = "local",
              address: str | None = None, progress: bool = True) -> dict[str, Any]:
     """Simulate `seeds` of `spec` into the data set folder `out`; resumable, never mixes scenarios.
@@ -155,8 +158,12 @@ def generate(spec: ScenarioSpec, seeds: Sequence[int], out: Path, workers: int =
     todo = [s for s in seeds if s not in entries]
     skipped = len(seeds) - len(todo)
 
+    last_save = 0.0
+
     def save() -> None:
+        nonlocal last_save
         write_manifest(out, build_manifest(entries.values(), dataset_info(spec, entries)))
+        last_save = time.perf_counter()
 
     save()
     failed: dict[int, str] = {}
@@ -170,7 +177,10 @@ def generate(spec: ScenarioSpec, seeds: Sequence[int], out: Path, workers: int =
             if result.ok:
                 v = result.value
                 entries[result.job] = {k: v[k] for k in ("scene_id", "file", "rows", "agents", "frames", "sha256")}
-                save()  # after each shard, so an interrupted run resumes from here
+                # Readers see progress every few seconds; a resume needs no manifest (shards describe
+                # themselves), and rewriting it after every shard would cost O(scenes^2) on big runs.
+                if time.perf_counter() - last_save > MANIFEST_EVERY_S:
+                    save()
                 agent_frames += v["agent_frames"]
                 collisions += v["collisions"]
                 teleports += v["teleports"]
