@@ -90,7 +90,7 @@ def main() -> None:
                   f"{ry['agent_frames'] / (ry['seconds'] + startup):10,.0f} agent-frames/s")
             shards = sorted((Path(tmp) / "local").glob("scene-*.parquet"))
             bytes_per_scene = sum(p.stat().st_size for p in shards) / len(shards)
-            manifest_per_scene = (Path(tmp) / "local" / "manifest.json").stat().st_size / len(shards)
+            manifest_per_scene = (Path(tmp) / "local" / "_manifest.json").stat().st_size / len(shards)
     finally:
         ray.shutdown()
     # On paper: the better of the two runs, per core (each worker is one single-threaded simulation).

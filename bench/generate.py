@@ -119,7 +119,7 @@ def main() -> None:
             print(f"  generate {len(seeds)} scenes, {workers} worker(s): {s['seconds']:7.2f} s  "
                   f"{s['agent_frames_per_s']:10,.0f} agent-frames/s")
         same = all((Path(tmp) / "w1" / f).read_bytes() == (Path(tmp) / "w2" / f).read_bytes()
-                   for f in ["manifest.json", *(f"scene-{s:06d}.parquet" for s in seeds)])
+                   for f in ["_manifest.json", *(f"scene-{s:06d}.parquet" for s in seeds)])
         print(f"  speed-up 2 workers / 1 worker       {walls[1] / walls[2]:7.3f}   (target >= 1.7); "
               f"data sets byte-identical: {same}")
         print(f"  machine: {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f} at the end (other work on "

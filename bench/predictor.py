@@ -121,7 +121,7 @@ def main() -> int:
     seeds, duration, samples, epochs, warmup = ("0-5", 40, 3000, 3, 1) if not args.full else ("0-19", 60, None, 16, 2)
     samples, epochs = args.max_samples or samples, args.epochs or epochs
     data = args.data or args.out / "data"
-    if args.data is None and not (data / "manifest.json").is_file():
+    if args.data is None and not (data / "_manifest.json").is_file():
         subprocess.run([sys.executable, "-m", "simharness", "generate", "sumo_arterial_dense", "--seeds", seeds,
                         "--out", str(data), "--duration", str(duration)], check=True)
     t = time.perf_counter()

@@ -104,7 +104,7 @@ def main() -> int:
 
     traf, eth = args.data / "traf", args.data / "eth_ucy"
     for fmt, src, dst in (("traf", "traf", traf), ("eth-ucy", "eth_ucy", eth)):
-        if not (args.reuse and (dst / "manifest.json").is_file()):
+        if not (args.reuse and (dst / "_manifest.json").is_file()):
             sh("import", fmt, str(SHARED / src), "--out", str(dst))
     for name, spec, data, units in (("traf", TRAF, traf, "px"), ("eth", ETH, eth, "m")):
         rows = run_set(name, spec, data, args.out, args.reuse)

@@ -34,9 +34,8 @@ def open_data(data: Path) -> tuple[str, list[str], Any]:
     # The one harness module predictor/ reads: the data set format, in the direction data flows.
     from simharness.io.parquet import Dataset
 
-    ds = Dataset(Path(data))
-    key = ds.manifest.get("content_hash") or hashlib.sha256(
-        json.dumps(ds.manifest.get("scenes", []), sort_keys=True).encode()).hexdigest()
+    ds = Dataset(Path(data))  # checks every shard's size and sha256 against the manifest
+    key = ds.content_hash  # of the shards as found: a cache never outlives the content it was built from
 
     def scenes_fn() -> tuple[list[Scene], list[str]]:
         scenes = [ds.scene(i) for i in range(len(ds))]
@@ -184,6 +183,9 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
 
 def train_command(args: argparse.Namespace) -> int:
     """`simharness train --data DIR --model NAME --out RUN [...]`."""
+    from simharness.io.folders import prepare_output
+
+    prepare_output(args.out, getattr(args, "force", False))
     res = train(args.data, model=args.model, out=args.out, epochs=args.epochs, warmup_epochs=args.warmup_epochs,
                 batch_size=args.batch_size, lr=args.lr, seed=args.seed, max_samples=args.max_samples,
                 max_val_samples=VAL_SAMPLES, test_scenes=getattr(args, "test_scenes", None),

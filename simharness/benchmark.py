@@ -317,6 +317,9 @@ def write_results(results: dict[str, Any], out: Path) -> None:
 
 def benchmark_command(args: argparse.Namespace) -> int:
     """CLI: `simharness benchmark --data DIR [--profile quick|medium|full] [--out DIR] [--workers N]`."""
+    from simharness.io.folders import prepare_output
+
+    prepare_output(Path(args.out), getattr(args, "force", False))
     res = benchmark(args.data, args.profile, args.out, workers=args.workers, executor=args.executor,
                     address=args.address)
     text = format_markdown(res)

@@ -7,31 +7,54 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import math
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from simharness.errors import SimulatorError, UserError
 
+MAX_SEED = 2**31 - 1  # simulators take 32-bit signed seeds
+MAX_SEEDS = 1_000_000  # per command: more is a typo, and would fill memory before anything ran
+
 
 def parse_seeds(text: str) -> list[int]:
-    """"0-99" or "1,5,9" or "3" or mixes ("0-4,10") -> sorted unique ints."""
-    seeds: set[int] = set()
+    """"0-99" or "1,5,9" or "3" or mixes ("0-4,10") -> sorted unique ints in [0, 2^31-1], at most 1e6 of them.
+
+    Bounds are checked on the parsed ends before any list is built, so "0-99999999999" fails at once.
+    """
+    spans: list[tuple[int, int]] = []
     try:
         for part in text.split(","):
             part = part.strip()
             if "-" in part[1:]:
                 lo, hi = part.split("-", 1)
-                if int(hi) < int(lo):
-                    raise ValueError
-                seeds.update(range(int(lo), int(hi) + 1))
+                spans.append((int(lo), int(hi)))
             else:
-                seeds.add(int(part))
+                spans.append((int(part), int(part)))
+            if spans[-1][1] < spans[-1][0]:
+                raise ValueError
     except ValueError:
         raise argparse.ArgumentTypeError(f"bad seed list {text!r}; expected e.g. 0-99 or 1,5,9") from None
-    if min(seeds) < 0:
-        raise argparse.ArgumentTypeError(f"bad seed list {text!r}; seeds must be non-negative")
+    if min(lo for lo, _ in spans) < 0 or max(hi for _, hi in spans) > MAX_SEED:
+        raise argparse.ArgumentTypeError(f"bad seed list {text!r}; seeds must be in 0..{MAX_SEED}")
+    if sum(hi - lo + 1 for lo, hi in spans) > MAX_SEEDS:
+        raise argparse.ArgumentTypeError(f"bad seed list {text!r}; at most {MAX_SEEDS:,} seeds per command")
+    seeds: set[int] = set()
+    for lo, hi in spans:
+        seeds.update(range(lo, hi + 1))
     return sorted(seeds)
+
+
+def finite_float(text: str) -> float:
+    """A float option that refuses NaN and infinities (float() accepts "nan", "inf", "1e999")."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    return value
 
 
 def parse_set(text: str) -> tuple[str, list[str]]:
@@ -75,12 +98,17 @@ def build_parser() -> argparse.ArgumentParser:
     executor_args.add_argument("--executor", choices=["local", "ray"], default="local")
     executor_args.add_argument("--address", default=None, help="Ray cluster address (with --executor ray)")
 
+    force_help = "write into a non-empty --out folder (files of the same name are replaced)"
+
+    def force(sp: argparse.ArgumentParser) -> None:
+        sp.add_argument("--force", action="store_true", help=force_help)
+
     g = sub.add_parser("generate", parents=[executor_args], help="simulate a scenario over seeds into a data set")
     g.set_defaults(func=_call("simharness.generation:generate_command"))
     g.add_argument("scenario", help="scenario file, or a shipped scenario's name")
     g.add_argument("--seeds", type=parse_seeds, default=[0], help="e.g. 0-99 (default 0)")
     g.add_argument("--out", type=Path, required=True, help="data set folder")
-    g.add_argument("--duration", type=float, default=None, help="override recorded seconds per scene")
+    g.add_argument("--duration", type=finite_float, default=None, help="override recorded seconds per scene")
 
     s = cmd("stats", "simharness.stats:stats_command", "a data set's figures (the TraPHic paper's Table 1)")
     s.add_argument("data", type=Path)
@@ -91,10 +119,11 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--data", type=Path, required=True)
     t.add_argument("--model", default="traphic", help="traphic, traphic-b, traphic-he, traphic-ho, or a baseline")
     t.add_argument("--out", type=Path, required=True, help="run folder (checkpoint, config, log)")
+    force(t)
     t.add_argument("--epochs", type=int, default=16)
     t.add_argument("--warmup-epochs", type=int, default=2, help="MSE epochs before the NLL")
     t.add_argument("--batch-size", type=int, default=128)
-    t.add_argument("--lr", type=float, default=1e-3)
+    t.add_argument("--lr", type=finite_float, default=1e-3)
     t.add_argument("--seed", type=int, default=0)
     t.add_argument("--max-samples", type=int, default=None, help="cap training windows (quick runs)")
     t.add_argument("--test-scenes", type=parse_names, default=None,
@@ -107,6 +136,7 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--data", type=Path, required=True)
     e.add_argument("--model", required=True, help="a run folder, 'traphic' (shipped weights) or 'const-vel'")
     e.add_argument("--out", type=Path, default=None, help="folder for metrics.json and figures")
+    force(e)
     e.add_argument("--protocol", default="traphic", help="traphic (3 s / 5 s) or eth-ucy (8 / 12 frames)")
     e.add_argument("--split", default="test", choices=["test", "all"], help="held-out scenes or every scene")
     e.add_argument("--test-scenes", type=parse_names, default=None,
@@ -118,6 +148,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--predictor", default="traphic", help="traphic, const-vel, oracle, none, or a run folder")
     c.add_argument("--seeds", type=parse_seeds, default=[0])
     c.add_argument("--out", type=Path, default=Path("runs/closedloop"))
+    force(c)
     c.add_argument("--animate", type=int, default=0, help="write an animation for the first N episodes")
     c.add_argument("--reaction", default=None, choices=["reactive", "cut_in", "ignore"],
                    help="override how background agents treat the ego")
@@ -128,6 +159,7 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--profile", choices=["quick", "medium", "full"], default="quick",
                    help="training budget: quick (tests), medium (~10-15 CPU-minutes), full (the paper's 16 epochs)")
     b.add_argument("--out", type=Path, default=Path("runs/benchmark"))
+    force(b)
 
     i = cmd("import", "simharness.io.importers:import_command", "convert a public data set into ours")
     i.add_argument("format", help="eth-ucy, traf, apolloscape, commonroad, argoverse2, tracknpred")
@@ -148,6 +180,7 @@ def build_parser() -> argparse.ArgumentParser:
     w.add_argument("--predictor", default="traphic")
     w.add_argument("--seeds", type=parse_seeds, default=[0])
     w.add_argument("--out", type=Path, default=Path("runs/sweep"))
+    force(w)
 
     sc = cmd("scenario", "simharness.scenario:scenario_command", "validate a scenario file, or list the keys")
     sc.add_argument("scenario", nargs="?", help="file to check; omit to print every key with its default")

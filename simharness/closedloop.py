@@ -558,6 +558,9 @@ def closedloop_command(args: Any) -> int:
     if not names:
         raise UserError("--predictor: expected a name (traphic, const-vel, oracle, none) or a run folder")
     out = Path(args.out)
+    from simharness.io.folders import prepare_output
+
+    prepare_output(out, getattr(args, "force", False))
     all_scores = {}
     for name in names:
         results = run_closed_loop(spec, name, args.seeds, args.workers, args.executor, args.address,

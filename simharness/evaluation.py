@@ -153,11 +153,13 @@ def format_table(results: dict[str, dict[str, Any]]) -> str:
 
 def evaluate_command(args: argparse.Namespace) -> int:
     """`simharness evaluate --data DIR --model RUN|traphic|const-vel [--out DIR] [--protocol] [--split]`."""
+    from simharness.io.folders import prepare_output
     from simharness.predictors import load_predictor
 
     predictor = load_predictor(args.model)
     name = Path(str(args.model)).name
     out_dir = Path(args.out) if args.out is not None else Path("runs/evaluate") / name
+    prepare_output(out_dir, getattr(args, "force", False))
     res = evaluate(args.data, predictor, get_protocol(args.protocol), split=args.split, figure_dir=out_dir, name=name,
                    test_scenes=getattr(args, "test_scenes", None))
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -2,8 +2,10 @@
 
 The job function `generate_scene` (one seed -> one shard) is separate from the pool: `generate`
 hands it to any `Executor` (local processes now, a cluster later). A run can be interrupted at any
-point: shards appear only when complete (temporary name, then rename), the manifest is rewritten
-after each one, and a rerun cleans temporary leftovers and runs only the missing seeds.
+point: shards appear only when complete (temporary name, then rename), the manifest is refreshed
+every few seconds and at the end (Ctrl-C included), and a rerun cleans temporary leftovers, checks every
+shard against the manifest (size, sha256), remakes damaged ones, lists complete ones a killed run left
+unlisted, and runs only the missing seeds. One writer at a time per folder (`folders.writer_lock`).
 """
 
 from __future__ import annotations
@@ -11,6 +13,8 @@ from __future__ import annotations
 import dataclasses
 import datetime
 import json
+import os
+import re
 import sys
 import time
 from collections.abc import Sequence
@@ -21,13 +25,17 @@ from tqdm import tqdm
 
 from simharness.errors import SimulatorError, UserError
 from simharness.executors import make_executor
+from simharness.io.folders import LOCK, writer_lock
 from simharness.io.parquet import (
+    LEGACY_MANIFEST,
     MANIFEST,
     TMP_PREFIX,
     build_manifest,
     clean_temp_files,
     describe_shard,
+    manifest_path,
     read_manifest,
+    shard_problem,
     software_versions,
     write_manifest,
     write_scene,
@@ -35,7 +43,9 @@ from simharness.io.parquet import (
 from simharness.scenario import ScenarioSpec, load_scenario
 
 SOURCE = "simharness generate"
-RUN_LOG = "runs.jsonl"
+RUN_LOG = "_runs.jsonl"
+LEGACY_RUN_LOG = "runs.jsonl"  # before 0.1.1; renamed to RUN_LOG on the next run
+SHARD_NAME = re.compile(r"scene-(\d{6,})\.parquet")
 
 
 def shard_path(out: Path, seed: int) -> Path:
@@ -110,10 +120,16 @@ def dataset_info(spec: ScenarioSpec, seeds: Sequence[int]) -> dict[str, Any]:
             "base_seed": spec.seed, "seeds": sorted(int(s) for s in seeds), "spec": spec.to_dict()}
 
 
-def _existing_entries(spec: ScenarioSpec, out: Path) -> dict[int, dict[str, Any]]:
-    """Complete shards already in `out`, by seed; refuses a folder of another scenario or config."""
+def _existing_entries(spec: ScenarioSpec, out: Path, seeds: Sequence[int]) -> tuple[dict[int, dict[str, Any]],
+                                                                                    list[str]]:
+    """(complete, intact shards already in `out` by seed, notes for the user); refuses another scenario's folder.
+
+    A listed shard must match its manifest entry (size, sha256); an unlisted one (a run killed before it
+    refreshed the manifest) must read as a complete shard of this config. Damaged shards are removed, so
+    that this run remakes them (or a rerun with their seed does).
+    """
     known: dict[str, dict[str, Any]] = {}
-    if (out / MANIFEST).exists():
+    if manifest_path(out).is_file():
         manifest = read_manifest(out)
         info = manifest.get("info", {})
         if info.get("config_hash") != spec.config_hash():
@@ -121,24 +137,37 @@ def _existing_entries(spec: ScenarioSpec, out: Path) -> dict[int, dict[str, Any]
                             f"{info.get('config_hash')}); refusing to mix it with {spec.name!r} (config "
                             f"{spec.config_hash()}): choose another --out")
         known = {e["file"]: e for e in manifest.get("scenes", [])}
-    allowed = {MANIFEST, RUN_LOG}
+    allowed = {MANIFEST, LEGACY_MANIFEST, RUN_LOG, LEGACY_RUN_LOG, LOCK}
     strangers = sorted(p.name for p in out.iterdir() if p.name not in allowed and not p.name.startswith(TMP_PREFIX)
-                       and not (p.name.startswith("scene-") and p.suffix == ".parquet"))
+                       and not SHARD_NAME.fullmatch(p.name))
     if strangers:
         raise UserError(f"{out}: holds {strangers[0]!r}, which is not part of a simharness data set; choose an "
                         f"empty or new --out")
-    entries = {}
+    entries, notes, wanted = {}, [], set(seeds)
     for path in sorted(out.glob("scene-*.parquet")):
+        if not SHARD_NAME.fullmatch(path.name):
+            continue
+        seed = int(SHARD_NAME.fullmatch(path.name).group(1))
         entry = known.get(path.name)
+        problem = shard_problem(path, entry) if entry is not None else None
         if entry is None:
-            entry = describe_shard(path)
-            _check_shard(entry, spec, path)
-            entry = {k: v for k, v in entry.items() if k != "meta"}
-        entries[int(path.stem.split("-")[1])] = entry
-    return entries
+            try:
+                entry = describe_shard(path)
+            except UserError:
+                problem = "not a readable Parquet shard"
+            else:
+                _check_shard(entry, spec, path)
+                entry = {k: v for k, v in entry.items() if k != "meta"}
+        if problem:
+            path.unlink()
+            notes.append(f"{path.name}: damaged ({problem}); removed, "
+                         + ("remade in this run" if seed in wanted else f"rerun with --seeds {seed} to remake it"))
+            continue
+        entries[seed] = entry
+    return entries, notes
 
 
-MANIFEST_EVERY_S = 10.0  # how often a running generation refreshes manifest.json
+MANIFEST_EVERY_S = 10.0  # how often a running generation refreshes _manifest.json
 
 
 def generate(spec: ScenarioSpec, seeds: Sequence[int], out: Path, workers: int = 2, executor: str = "local",
@@ -149,12 +178,23 @@ def generate(spec: ScenarioSpec, seeds: Sequence[int], out: Path, workers: int =
     seconds, agent_frames_per_s, collisions, teleports}.
     """
     out = Path(out)
+    pool = make_executor(executor, workers, address)
+    if out.exists() and not out.is_dir():
+        raise UserError(f"{out}: --out names a file; expected a data set folder")
+    out.mkdir(parents=True, exist_ok=True)
+    with writer_lock(out):
+        return _generate_locked(spec, seeds, out, pool, workers, executor, progress)
+
+
+def _generate_locked(spec: ScenarioSpec, seeds: Sequence[int], out: Path, pool: Any, workers: int, executor: str,
+                     progress: bool) -> dict[str, Any]:
+    """`generate` once this process holds the folder's writer lock."""
     started = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
     t0 = time.perf_counter()
-    pool = make_executor(executor, workers, address)
-    out.mkdir(parents=True, exist_ok=True)
-    clean_temp_files(out)
-    entries = _existing_entries(spec, out)
+    clean_temp_files(out)  # safe: no other writer runs (the lock)
+    entries, notes = _existing_entries(spec, out, seeds)
+    for note in notes:
+        print(f"note: {note}", file=sys.stderr)
     todo = [s for s in seeds if s not in entries]
     skipped = len(seeds) - len(todo)
 
@@ -176,7 +216,8 @@ def generate(spec: ScenarioSpec, seeds: Sequence[int], out: Path, workers: int =
         for result in pool.map_unordered(SceneJob(spec, out.absolute()), todo):
             if result.ok:
                 v = result.value
-                entries[result.job] = {k: v[k] for k in ("scene_id", "file", "rows", "agents", "frames", "sha256")}
+                entries[result.job] = {k: v[k] for k in ("scene_id", "file", "rows", "agents", "frames", "bytes",
+                                                         "sha256")}
                 # Readers see progress every few seconds; a resume needs no manifest (shards describe
                 # themselves), and rewriting it after every shard would cost O(scenes^2) on big runs.
                 if time.perf_counter() - last_save > MANIFEST_EVERY_S:
@@ -194,18 +235,20 @@ def generate(spec: ScenarioSpec, seeds: Sequence[int], out: Path, workers: int =
             bar.set_postfix_str(f"{rate:,.0f} agent-frames/s, {len(failed)} failed")
     finally:
         bar.close()
+        save()  # Ctrl-C included: what completed is listed
     clean_temp_files(out)  # half-written files of attempts whose worker died (their retries completed)
-    save()
     seconds = time.perf_counter() - t0
     summary = {
         "scenario": spec.name, "config_hash": spec.config_hash(), "out": str(out), "requested": len(seeds),
         "done": len(todo) - len(failed), "skipped": skipped, "failed": {int(k): v for k, v in sorted(failed.items())},
         "agent_frames": agent_frames, "seconds": round(seconds, 3), "job_seconds": round(sim_seconds, 3),
         "agent_frames_per_s": round(agent_frames / max(seconds, 1e-9), 1), "collisions": collisions,
-        "teleports": teleports, "scenes_in_dataset": len(entries),
+        "teleports": teleports, "scenes_in_dataset": len(entries), "remade_or_removed": notes,
     }
     log = {"started_utc": started, "command": sys.argv, "seeds": list(map(int, seeds)), "workers": workers,
            "executor": executor, "versions": software_versions(), **summary}
+    if (out / LEGACY_RUN_LOG).is_file() and not (out / RUN_LOG).exists():
+        os.replace(out / LEGACY_RUN_LOG, out / RUN_LOG)
     with open(out / RUN_LOG, "a", encoding="utf-8") as f:  # run details live here, never in shards/manifest
         f.write(json.dumps(log, sort_keys=True) + "\n")
     return summary

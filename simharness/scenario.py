@@ -20,6 +20,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import math
 import sys
 import types
 import typing
@@ -249,6 +250,8 @@ def _check(hint: Any, value: Any, meta: Any, where: str, key: str) -> Any:
         if isinstance(value, bool) or not isinstance(value, (int, float)) or (
                 hint is int and not isinstance(value, int)):
             raise bad("an integer" if hint is int else "a number")
+        if not math.isfinite(value):  # TOML reads nan and inf; no key means them, and comparisons let NaN by
+            raise bad("a finite number")
         if (lo is not None and value < lo) or (hi is not None and value > hi):
             raise bad(f"a number in [{lo}, {hi}]")
         return hint(value)

@@ -17,6 +17,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 from tqdm import tqdm
 
+from simharness.errors import UserError
 from simharness.io.parquet import Dataset
 from simharness.metrics.collisions import box_heading, collision_events
 from simharness.scene import AgentType, Scene
@@ -87,9 +88,22 @@ def pair_kind(type_a: np.ndarray, type_b: np.ndarray) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------- data set figures
+def dataset_name(info: dict[str, Any], path: Path) -> str:
+    """A short name for the table: the scenario, else the imported format, else the folder's name."""
+    name = info.get("scenario")
+    if isinstance(name, dict):  # closed-loop episodes record the whole spec
+        name = name.get("name")
+    source = info.get("source")
+    if not name and isinstance(source, dict):  # imported: {"format": ..., "files": [...]}
+        name = f"{source.get('format', 'imported')} ({path.name})"
+    return str(name or source or path.name)
+
+
 def dataset_stats(path: Path, progress: bool = False) -> dict[str, Any]:
     """All figures of a data set folder as one JSON-ready dict (see module doc). UserError if unreadable."""
     ds = Dataset(Path(path))
+    if len(ds) == 0:
+        raise UserError(f"{ds.path}: the data set lists no scenes; nothing to describe")
     frames = agent_frames = agents = 0
     by_type = np.zeros(NUM_TYPES, np.int64)
     speed_sum, speed_sq = np.zeros(NUM_TYPES), np.zeros(NUM_TYPES)
@@ -157,7 +171,7 @@ def dataset_stats(path: Path, progress: bool = False) -> dict[str, Any]:
                                 "p95": round(float(np.percentile(v, 95)), 3)}
     return {
         "dataset": str(ds.path),
-        "scenario": ds.info.get("scenario", ds.info.get("source", "")),
+        "scenario": dataset_name(ds.info, ds.path),
         "scenes": len(ds),
         "frames": frames,
         "dt": sorted(dts)[0] if len(dts) == 1 else sorted(dts),

@@ -197,8 +197,11 @@ def write_outputs(out: Path, result: dict[str, Any]) -> None:
 
 def sweep_command(args: Any) -> int:
     """`simharness sweep SCENARIO --set KEY=V1,V2 [--set ...] --seeds 0-9 [--predictor P[,P]] [--executor ray]`."""
+    from simharness.io.folders import prepare_output
+
     spec = load_scenario(args.scenario)
     names = [n.strip() for n in str(args.predictor).split(",") if n.strip()]
+    prepare_output(Path(args.out), getattr(args, "force", False))
     result = sweep(spec, args.sets, names, args.seeds, Path(args.out), args.workers, args.executor, args.address)
     print(markdown_table(result))
     out = Path(args.out)

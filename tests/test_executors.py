@@ -45,7 +45,7 @@ def spec():
 
 def dataset_bytes(folder: Path) -> dict[str, bytes]:
     """Every file of a data set (shards and manifest); the run log is run details, not data."""
-    return {p.name: p.read_bytes() for p in sorted(folder.iterdir()) if p.name != "runs.jsonl"}
+    return {p.name: p.read_bytes() for p in sorted(folder.iterdir()) if p.name not in ("_runs.jsonl", "_lock")}
 
 
 @pytest.fixture(scope="module")
@@ -163,7 +163,7 @@ def test_ray_writes_the_same_data_set_as_the_local_pool(spec, reference, ray_ins
     s = generate(spec, SEEDS, out, workers=2, executor="ray", progress=False)
     assert s["done"] == len(SEEDS) and not s["failed"], s
     got = dataset_bytes(out)
-    assert sorted(got) == ["manifest.json", "scene-000000.parquet", "scene-000001.parquet", "scene-000002.parquet"]
+    assert sorted(got) == ["_manifest.json", "scene-000000.parquet", "scene-000001.parquet", "scene-000002.parquet"]
     assert got == reference  # shards and manifest byte for byte: 2 Ray workers vs 1 local process
 
 

@@ -80,7 +80,7 @@ def run_cli(*argv: str, **kw) -> subprocess.CompletedProcess:
 
 
 def shard_bytes(folder: Path) -> dict[str, bytes]:
-    return {p.name: p.read_bytes() for p in sorted(folder.iterdir()) if p.name != "runs.jsonl"}
+    return {p.name: p.read_bytes() for p in sorted(folder.iterdir()) if p.name not in ("_runs.jsonl", "_lock")}
 
 
 @pytest.fixture(scope="module")
@@ -104,7 +104,7 @@ def test_generated_data_set_reads_back(dense) -> None:
     assert scene.meta["seed"] == 0 and scene.meta["config_hash"] == spec.config_hash()
     assert ds.road is not None and ds.manifest["info"]["seeds"] == [0, 1]
     assert ds.manifest["rows"] == sum(int(s.valid.sum()) for s in ds)
-    log = [json.loads(line) for line in (out / "runs.jsonl").read_text().splitlines()]
+    log = [json.loads(line) for line in (out / "_runs.jsonl").read_text().splitlines()]
     assert log[-1]["config_hash"] == spec.config_hash() and log[-1]["seeds"] == [0, 1]
 
 

@@ -95,7 +95,7 @@ def test_same_scene_gives_identical_bytes(tmp_path: Path) -> None:
 def test_write_dataset_and_read_it_back(tmp_path: Path) -> None:
     scenes = [rich_scene(i).replace(meta={**rich_scene(i).meta, "scene_id": f"ep-{i}"}) for i in range(3)]
     out = write_dataset(scenes, tmp_path / "ds", {"source": "unit test", "seeds": [0, 1, 2]})
-    assert sorted(p.name for p in out.iterdir()) == ["ep-0.parquet", "ep-1.parquet", "ep-2.parquet", MANIFEST]
+    assert sorted(p.name for p in out.iterdir()) == [MANIFEST, "ep-0.parquet", "ep-1.parquet", "ep-2.parquet"]
     ds = Dataset(out)
     assert len(ds) == 3 and ds.scene_ids == ["ep-0", "ep-1", "ep-2"]
     assert ds.manifest["schema_version"] == SCHEMA_VERSION and ds.info["seeds"] == [0, 1, 2]
@@ -129,7 +129,7 @@ def test_dataset_errors_are_one_clear_line(tmp_path: Path) -> None:
     with pytest.raises(UserError, match="not found"):
         Dataset(tmp_path / "nope")
     (tmp_path / "empty").mkdir()
-    with pytest.raises(UserError, match="manifest.json: missing"):
+    with pytest.raises(UserError, match="_manifest.json: missing"):
         Dataset(tmp_path / "empty")
     out = write_dataset([rich_scene(0), rich_scene(1)], tmp_path / "ds", {})
     manifest = json.loads((out / MANIFEST).read_text())
@@ -141,10 +141,10 @@ def test_dataset_errors_are_one_clear_line(tmp_path: Path) -> None:
     (out / MANIFEST).write_text(json.dumps(manifest))
     shard = out / "scene-000001.parquet"
     shard.write_bytes(shard.read_bytes()[: shard.stat().st_size // 2])
-    with pytest.raises(UserError, match="scene-000001.parquet: corrupt"):
+    with pytest.raises(UserError, match="scene-000001.parquet: damaged shard: .* bytes"):
         Dataset(out)
     shard.unlink()
-    with pytest.raises(UserError, match="scene-000001.parquet: shard listed in manifest.json is missing"):
+    with pytest.raises(UserError, match="scene-000001.parquet: shard listed in _manifest.json is missing"):
         Dataset(out)
 
 
@@ -157,7 +157,7 @@ def test_cli_names_a_corrupt_shard_and_exits_2(tmp_path: Path) -> None:
     proc = subprocess.run([sys.executable, "-m", "simharness", "stats", str(out)], capture_output=True, text=True)
     assert proc.returncode == 2, proc.stderr
     lines = proc.stderr.strip().splitlines()
-    assert len(lines) == 1 and "scene-000000.parquet" in lines[0] and "corrupt" in lines[0]
+    assert len(lines) == 1 and "scene-000000.parquet" in lines[0] and "damaged" in lines[0]
     proc = subprocess.run([sys.executable, "-m", "simharness", "stats", str(tmp_path)], capture_output=True,
                           text=True)
-    assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and "manifest.json: missing" in proc.stderr
+    assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and "_manifest.json: missing" in proc.stderr

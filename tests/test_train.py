@@ -88,8 +88,8 @@ def test_bad_checkpoints_fail_with_one_clear_line(run, tmp_path):
 
 def test_windows_cache_lives_outside_the_data_set(run, tmp_path, monkeypatch):
     data = run[0]  # already trained on: its windows were cached somewhere
-    assert all(p.name == "manifest.json" or p.suffix == ".parquet" for p in data.iterdir())
+    assert all(p.name.startswith("_") or p.suffix == ".parquet" for p in data.iterdir())
     monkeypatch.setenv("SIMHARNESS_CACHE_DIR", str(tmp_path))
     store = load_windows(data, WindowConfig(stride=3), progress=False)
     assert len(store) > 0 and len(list((tmp_path / "windows").glob("windows-*.npz"))) == 1
-    assert all(p.name == "manifest.json" or p.suffix == ".parquet" for p in data.iterdir())
+    assert all(p.name.startswith("_") or p.suffix == ".parquet" for p in data.iterdir())

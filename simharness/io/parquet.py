@@ -1,4 +1,4 @@
-"""The project's own data set format: a folder of Parquet shards (one per scene) and `manifest.json`.
+"""The project's own data set format: a folder of Parquet shards (one per scene) and `_manifest.json`.
 
 One row per valid agent-frame, sorted by (frame, agent row)::
 
@@ -12,7 +12,10 @@ key-value metadata under `simharness` as JSON, so a shard is self-describing. En
 agent-frames are not stored: they read back as zeros (what simulators and `scene_from_frames` emit).
 
 Every file is written under a temporary name and renamed when complete; identical input gives
-identical bytes (no timestamps, hostnames or wall times anywhere).
+identical bytes (no timestamps, hostnames or wall times anywhere). Files that are not shards start with
+`_` (`_manifest.json`, `_runs.jsonl`, `_lock`) or `.tmp-`, names pandas, pyarrow, polars and DuckDB skip,
+so any of them opens the folder as one table. The manifest lists each shard's size and sha256: opening a
+data set checks both, so a shard damaged, truncated or replaced after it was written is named, never used.
 """
 
 from __future__ import annotations
@@ -38,7 +41,8 @@ from simharness.scene import LABELS, AgentType, Scene, agent_types_from_labels
 from simharness.sim.base import RoadGeometry
 
 SCHEMA_VERSION: int = 1
-MANIFEST = "manifest.json"
+MANIFEST = "_manifest.json"
+LEGACY_MANIFEST = "manifest.json"  # written before 0.1.1 (a name readers took for a shard); still read
 META_KEY = b"simharness"
 TMP_PREFIX = ".tmp-"
 BASE_COLUMNS = ("scene_id", "frame", "t", "agent_id", "agent_type", "x", "y", "heading", "speed",
@@ -258,13 +262,13 @@ def shard_name(scene_id: str) -> str:
 def shard_entry(path: Path, scene: Scene, scene_id: str, rows: int) -> dict[str, Any]:
     """One manifest line for a written shard."""
     return {"scene_id": scene_id, "file": Path(path).name, "rows": int(rows), "agents": scene.num_agents,
-            "frames": scene.num_frames, "sha256": file_sha256(path)}
+            "frames": scene.num_frames, "bytes": Path(path).stat().st_size, "sha256": file_sha256(path)}
 
 
 def describe_shard(path: Path) -> dict[str, Any]:
     """Manifest entry of a shard already on disk (from its footer, no row reading), plus its `meta`.
 
-    Returns {scene_id, file, rows, agents, frames, sha256, meta}; UserError if unreadable.
+    Returns {scene_id, file, rows, agents, frames, bytes, sha256, meta}; UserError if unreadable.
     """
     path = Path(path)
     info = _shard_info(path)
@@ -274,13 +278,32 @@ def describe_shard(path: Path) -> dict[str, Any]:
         raise UserError(f"{path}: corrupt or unreadable Parquet shard ({_short(e)})") from None
     return {"scene_id": info["scene_id"], "file": path.name, "rows": int(rows),
             "agents": len(info["agents"]["agent_id"]), "frames": int(info["num_frames"]),
-            "sha256": file_sha256(path), "meta": info["meta"]}
+            "bytes": path.stat().st_size, "sha256": file_sha256(path), "meta": info["meta"]}
+
+
+def content_hash(entries: Iterable[dict[str, Any]]) -> str:
+    """sha256 over the shards' (file, sha256) pairs in scene-id order: the data set's identity."""
+    scenes = sorted(entries, key=lambda e: e["scene_id"])
+    return hashlib.sha256("".join(f"{e['file']}:{e.get('sha256', '')}\n" for e in scenes).encode()).hexdigest()
+
+
+def shard_problem(path: Path, entry: dict[str, Any], hash_it: bool = True) -> str | None:
+    """Why the shard at `path` is not the one `entry` lists (missing, size, sha256), or None if it is."""
+    try:
+        size = Path(path).stat().st_size
+    except FileNotFoundError:
+        return "missing"
+    if "bytes" in entry and size != entry["bytes"]:
+        return f"{size} bytes, the manifest lists {entry['bytes']} (truncated or replaced)"
+    if hash_it and "sha256" in entry and file_sha256(path) != entry["sha256"]:
+        return "content differs from the sha256 the manifest lists (changed after it was written)"
+    return None
 
 
 def build_manifest(entries: Iterable[dict[str, Any]], info: dict[str, Any]) -> dict[str, Any]:
     """Manifest content from shard entries (sorted by scene id) and the caller's info."""
     scenes = sorted(entries, key=lambda e: e["scene_id"])
-    content = hashlib.sha256("".join(f"{e['file']}:{e['sha256']}\n" for e in scenes).encode()).hexdigest()
+    content = content_hash(scenes)
     return {
         "format": "simharness-dataset",
         "schema_version": SCHEMA_VERSION,
@@ -295,9 +318,24 @@ def build_manifest(entries: Iterable[dict[str, Any]], info: dict[str, Any]) -> d
 
 
 def write_manifest(out: Path, manifest: dict[str, Any]) -> Path:
+    """`_manifest.json` (strict JSON: a NaN anywhere is a bug upstream); an old `manifest.json` goes."""
     path = Path(out) / MANIFEST
-    atomic_write_bytes(path, (dumps(manifest, indent=1) + "\n").encode())
+    try:
+        text = json.dumps(manifest, sort_keys=True, indent=1, default=_json_default, allow_nan=False)
+    except ValueError:
+        raise UserError(f"{path}: refusing to write a manifest holding NaN or infinity (a non-finite setting "
+                        "got through)") from None
+    atomic_write_bytes(path, (text + "\n").encode())
+    with contextlib.suppress(FileNotFoundError):
+        (Path(out) / LEGACY_MANIFEST).unlink()
     return path
+
+
+def manifest_path(folder: Path) -> Path:
+    """The folder's manifest file: `_manifest.json`, else a legacy `manifest.json` (which may not exist)."""
+    new = Path(folder) / MANIFEST
+    old = Path(folder) / LEGACY_MANIFEST
+    return old if not new.is_file() and old.is_file() else new
 
 
 def clean_temp_files(out: Path) -> list[Path]:
@@ -332,13 +370,14 @@ def write_dataset(scenes: Iterable[Scene], out: Path, info: dict[str, Any], over
 
 
 def read_manifest(path: Path) -> dict[str, Any]:
-    """`manifest.json` of a data set folder; UserError one-liners for the usual mistakes."""
+    """`_manifest.json` (or a legacy `manifest.json`) of a data set folder; UserError one-liners for the usual
+    mistakes."""
     path = Path(path)
     if not path.exists():
         raise UserError(f"{path}: data set folder not found")
     if not path.is_dir():
         raise UserError(f"{path}: expected a data set folder (with {MANIFEST}), got a file")
-    mpath = path / MANIFEST
+    mpath = manifest_path(path)
     if not mpath.is_file():
         raise UserError(f"{mpath}: missing; expected a simharness data set folder (run `simharness generate` "
                         f"or `simharness import` to make one)")
@@ -351,6 +390,13 @@ def read_manifest(path: Path) -> dict[str, Any]:
     if manifest.get("schema_version") != SCHEMA_VERSION:
         raise UserError(f"{mpath}: key 'schema_version' is {manifest.get('schema_version')!r}; this simharness "
                         f"reads version {SCHEMA_VERSION}")
+    scenes = manifest.get("scenes", [])
+    if not isinstance(scenes, list) or not all(isinstance(e, dict) and isinstance(e.get("file"), str)
+                                               and isinstance(e.get("scene_id"), str) for e in scenes):
+        raise UserError(f"{mpath}: key 'scenes' must be a list of {{scene_id, file, ...}} entries")
+    bad = [e["file"] for e in scenes if Path(e["file"]).name != e["file"] or not e["file"].endswith(".parquet")]
+    if bad:
+        raise UserError(f"{mpath}: shard {bad[0]!r} is not a .parquet file name inside the folder")
     return manifest
 
 
@@ -358,25 +404,31 @@ def read_manifest(path: Path) -> dict[str, Any]:
 class Dataset:
     """A data set folder, read lazily: `len`, iteration and `scene(i or id)` give `Scene`s.
 
-    Opening checks the manifest and every listed shard's footer (existence, schema version, row
-    count), so a missing or truncated shard is named up front.
+    Opening checks the manifest and every listed shard against it (presence, size and sha256: about 1 ms
+    per MB), so a missing, truncated or replaced shard is named up front, and refuses a folder holding
+    shards the manifest does not list (an interrupted `generate`: rerunning it lists them). `content_hash`
+    is computed from the shards as found, so caches keyed on it follow the content.
     """
 
-    def __init__(self, path: Path) -> None:
+    def __init__(self, path: Path, verify: bool = True) -> None:
         self.path = Path(path)
         self.manifest: dict[str, Any] = read_manifest(self.path)
+        mname = manifest_path(self.path).name
         entries = self.manifest.get("scenes", [])
         self.scene_ids: list[str] = [e["scene_id"] for e in entries]
         self.shard_paths: list[Path] = [self.path / e["file"] for e in entries]
         for entry, shard in zip(entries, self.shard_paths, strict=True):
-            if not shard.is_file():
-                raise UserError(f"{shard}: shard listed in {MANIFEST} is missing")
-            try:
-                rows = pq.read_metadata(shard).num_rows
-            except (OSError, pa.ArrowException) as e:
-                raise UserError(f"{shard}: corrupt or unreadable Parquet shard ({_short(e)})") from None
-            if rows != entry["rows"]:
-                raise UserError(f"{shard}: holds {rows} rows, {MANIFEST} says {entry['rows']}")
+            problem = shard_problem(shard, entry, hash_it=verify)
+            if problem == "missing":
+                raise UserError(f"{shard}: shard listed in {mname} is missing")
+            if problem:
+                raise UserError(f"{shard}: damaged shard: {problem}; regenerate or re-import the data set")
+        listed = {e["file"] for e in entries}
+        unlisted = sorted(p.name for p in self.path.glob("*.parquet") if p.name not in listed)
+        if unlisted:
+            raise UserError(f"{self.path / unlisted[0]}: shard not listed in {mname} ({len(unlisted)} such); the "
+                            "writer was interrupted: rerun the same `simharness generate` command to finish it")
+        self.content_hash: str = content_hash(entries)
         self._road: RoadGeometry | None = None
         self._road_read = False
 
