@@ -35,12 +35,27 @@ def atomic_write_text(path: Path, text: str) -> None:
     os.replace(tmp, path)
 
 
-def save_checkpoint(model: Any, path: Path) -> None:
-    """state_dict -> path, atomically."""
+def non_finite_tensor(state: dict[str, Any]) -> str | None:
+    """Name of the first floating-point tensor of a state_dict holding NaN or infinity, or None."""
     import torch
 
+    for name, value in state.items():
+        if isinstance(value, torch.Tensor) and value.is_floating_point() and not bool(torch.isfinite(value).all()):
+            return name
+    return None
+
+
+def save_checkpoint(model: Any, path: Path) -> None:
+    """state_dict -> path, atomically; UserError (nothing written) if a weight is NaN or infinite."""
+    import torch
+
+    state = model.state_dict()
+    bad = non_finite_tensor(state)
+    if bad is not None:
+        raise UserError(f"{path}: refusing to save weights with NaN or infinity (in {bad!r}); training diverged: "
+                        "lower --lr")
     tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    torch.save(model.state_dict(), tmp)
+    torch.save(state, tmp)
     os.replace(tmp, path)
 
 
@@ -83,6 +98,9 @@ def load_checkpoint(weights: Path, config: Path) -> tuple[Any, dict[str, Any]]:
                          (("missing", missing), ("unexpected", extra), ("wrong shape", shapes)) if v)
         raise UserError(f"{weights}: does not fit model {cfg['model']!r} of {config.name} ({what}); "
                         "is it another model's checkpoint?")
+    bad = non_finite_tensor(state)
+    if bad is not None:
+        raise UserError(f"{weights}: weight {bad!r} holds NaN or infinity; the checkpoint is unusable (retrain it)")
     model.load_state_dict(state)
     model.eval()
     return model, cfg

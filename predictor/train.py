@@ -174,6 +174,9 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
             tqdm.write(f"epoch {epoch + 1}: {kind} train {tot / max(nb, 1):.3f}  val mse {val['mse']:.3f} "
                        f"nll {val['nll']:.3f}  ({len(order) / secs:.0f} samples/s)")
         atomic_write_text(out / "log.csv", log.getvalue())
+    if best_epoch < 0:  # every validation loss was NaN: no checkpoint, so no run folder either
+        (out / "log.csv").unlink(missing_ok=True)
+        raise UserError(f"{out}: training diverged (validation loss NaN in every epoch); nothing saved: lower --lr")
     config["best_epoch"], config["best_val"] = best_epoch, best
     atomic_write_text(out / "config.json", json.dumps(config, indent=1, sort_keys=True) + "\n")
     return {"best_epoch": best_epoch, "best_val": best, "val_history": history,

@@ -27,7 +27,10 @@ def is_dataset_folder(path: Path) -> bool:
 
 
 def prepare_output(out: Path, force: bool = False, option: str = "--out") -> Path:
-    """Check `out` against the rule above and create it; returns it. UserError (one line) if refused."""
+    """Check `out` against the rule above (before any work, so a refusal costs nothing); returns it.
+
+    The folder is not created here: a command that then fails on its input leaves nothing behind.
+    UserError (one line) if refused."""
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise UserError(f"{out}: {option} names a file; expected a folder")
@@ -36,7 +39,6 @@ def prepare_output(out: Path, force: bool = False, option: str = "--out") -> Pat
                         f"another {option}")
     if out.is_dir() and any(out.iterdir()) and not force:
         raise UserError(f"{out}: exists and is not empty; choose another {option}, or pass --force to write into it")
-    out.mkdir(parents=True, exist_ok=True)
     return out
 
 
