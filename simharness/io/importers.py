@@ -34,6 +34,11 @@ from simharness.errors import UserError
 from simharness.scene import AgentType, Scene, stack_frames
 
 PathLike = str | Path
+# Bounds on what a source may hold, so a typo (frame 1e18, x 1e300) is one line, not a memory error or inf.
+MAX_FRAME_NUMBER = 2**31  # |frame numbers, ids|
+MAX_COLUMNS = 1_000_000  # frames per scene (11.6 days at 1 Hz)
+MAX_CELLS = 200_000_000  # agents x frames of one scene, as dense arrays (~5 GB)
+MAX_COORD = 1e7  # |x|, |y|, sizes, speeds in the source's units (float32 holds them to ~1 unit)
 
 
 # ====================================================================== shared building blocks
@@ -103,6 +108,12 @@ def scene_from_rows(
     r = len(frame)
     if r == 0:
         raise UserError(f"{where(-1)}: no trajectory rows found")
+    if not (isinstance(dt, (int, float)) and math.isfinite(dt) and 1e-4 <= dt <= 3600):
+        raise UserError(f"{where(-1)}: frame interval {dt!r} s; expected a number in [0.0001, 3600]")
+    _check_bounded(where, "x, y", xy)
+    for name, arr in (("heading", heading), ("speed", speed), ("size", size), *(extra or {}).items()):
+        if arr is not None:
+            _check_bounded(where, name, arr)
     f0 = int(frame.min())
     rel = frame - f0
     off = np.flatnonzero(rel % frame_step)
@@ -112,6 +123,13 @@ def scene_from_rows(
     col = (rel // frame_step).astype(np.int64)
     num_frames = int(col.max()) + 1
     agent = np.asarray(agent).astype(str)
+    if num_frames > MAX_COLUMNS:
+        i = int(np.argmax(col))
+        raise UserError(f"{where(i)}: frame {int(frame[i])} makes the scene {num_frames:,} frames long (from frame "
+                        f"{f0}); at most {MAX_COLUMNS:,}: a typo in a frame number?")
+    if num_frames * len(np.unique(agent)) > MAX_CELLS:
+        raise UserError(f"{where(-1)}: {len(np.unique(agent)):,} agents x {num_frames:,} frames is too large for one "
+                        f"scene (at most {MAX_CELLS:,}); split the file")
     # Duplicate (frame, agent) rows: report the second occurrence.
     key = pd.MultiIndex.from_arrays([col, agent])
     dup = np.flatnonzero(key.duplicated())
@@ -246,10 +264,23 @@ def read_numeric_table(path: Path, counts: Sequence[int], layout: str, sep: str 
 
 
 def _integral(values: np.ndarray, where: Callable[[int], str], what: str) -> np.ndarray:
+    values = np.asarray(values, np.float64)
     bad = np.flatnonzero(values != np.round(values))
     if bad.size:
         raise UserError(f"{where(int(bad[0]))}: {what} must be a whole number, got {values[bad[0]]}")
+    bad = np.flatnonzero(np.abs(values) >= MAX_FRAME_NUMBER)
+    if bad.size:
+        raise UserError(f"{where(int(bad[0]))}: {what} {values[bad[0]]:g} is out of range (|{what}| < 2^31)")
     return values.astype(np.int64)
+
+
+def _check_bounded(where: Callable[[int], str], what: str, values: Any) -> None:
+    """UserError at the first row of `values` (R, ...) that is not finite or exceeds MAX_COORD in size."""
+    arr = np.asarray(values, np.float64).reshape(len(values), -1) if len(values) else np.zeros((0, 1))
+    bad = np.flatnonzero(~(np.abs(arr) <= MAX_COORD).all(axis=1))
+    if bad.size:
+        raise UserError(f"{where(int(bad[0]))}: {what} {arr[bad[0]].tolist()} must be finite and within "
+                        f"+-{MAX_COORD:g}")
 
 
 def _where(path: Path, lines: np.ndarray, unit: str = "") -> Callable[[int], str]:
@@ -276,7 +307,8 @@ def import_eth_ucy(paths: Sequence[PathLike]) -> list[Scene]:
         ped = _integral(vals[:, 1], where, "ped_id")
         diffs = np.diff(np.unique(frame))
         # The annotation step is the commonest frame difference; a frame off its grid is an error.
-        step = int(np.bincount(diffs).argmax()) if diffs.size else 1
+        values, counts = np.unique(diffs, return_counts=True)  # not bincount: a gap of 1e9 frames is one entry
+        step = int(values[np.argmax(counts)]) if diffs.size else 1
         scenes.append(scene_from_rows(
             frame, ped.astype(str), vals[:, 2:4], dt=ETH_UCY_DT, frame_step=max(step, 1),
             agent_type=np.full(len(frame), AgentType.PEDESTRIAN, np.int8), where=where,
@@ -342,6 +374,8 @@ def _traf_rows(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarr
             frame, n = int(fields[0]), int(fields[1])
         except (ValueError, IndexError):
             raise UserError(f"{path}:{i}: expected {layout}; got {_line_text(path, i)!r}") from None
+        if not -MAX_FRAME_NUMBER < frame < MAX_FRAME_NUMBER:
+            raise UserError(f"{path}:{i}: frame {frame} is out of range (|frame| < 2^31)")
         if n < 0 or len(fields) != 2 + 5 * n:
             raise UserError(f"{path}:{i}: says {n} agents, so {2 + 5 * n} fields ({layout}); got {len(fields)}")
         groups = np.array(fields[2:], dtype=object).reshape(n, 5)
@@ -773,7 +807,14 @@ def import_scenes(fmt: str, files: Sequence[PathLike], allow_pickle: bool = Fals
     seen: dict[str, Path] = {}
     for f in files:
         kwargs = {"allow_pickle": allow_pickle} if fn is import_tracknpred else {}
-        for scene in fn([f], **kwargs):
+        try:
+            scenes = fn([f], **kwargs)
+        except UserError:
+            raise
+        except Exception as e:  # safety net: a source we did not foresee is still one line naming the file
+            msg = str(e).strip().splitlines()[0][:160] if str(e).strip() else ""
+            raise UserError(f"{f}: cannot be read as {format_name(fmt)} ({type(e).__name__}: {msg})") from None
+        for scene in scenes:
             sid = scene.meta["scene_id"]
             if sid in seen:
                 raise UserError(f"{f}: scene id {sid!r} already taken by {seen[sid]}; rename one of the files")
