@@ -57,8 +57,8 @@ DATA = Path(__file__).resolve().parent.parent.parent / "shared" / "data"
 
 
 def one_error_line(capsys: pytest.CaptureFixture[str], *needles: str) -> str:
-    err = capsys.readouterr().err.strip().splitlines()
-    err = [line for line in err if "it/s]" not in line and "file/s]" not in line]  # tqdm bars
+    text = capsys.readouterr().err.replace("\r", "\n").replace("simharness: ", "\nsimharness: ")
+    err = [line for line in text.splitlines() if line.strip() and "%|" not in line]  # tqdm bars
     assert len(err) == 1 and "Traceback" not in err[0], err
     for n in needles:
         assert n in err[0], err[0]

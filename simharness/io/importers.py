@@ -846,6 +846,8 @@ def import_command(args: argparse.Namespace) -> int:
                 label = AgentType(int(code)).label
                 summary["types"][label] = summary["types"].get(label, 0) + int(count)
             yield scene
+        if not summary["scenes"]:  # raised inside the writer's block: the half-made folder is removed
+            raise UserError(f"{', '.join(map(str, files))[:200]}: no trajectory rows found; nothing to import")
 
     info = {"source": {"format": fmt, "files": [{"name": f.name, "sha256": _sha256(f)} for f in files]},
             "importer": "simharness.io.importers", "allow_pickle": bool(args.allow_pickle)}
