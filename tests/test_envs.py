@@ -1,11 +1,10 @@
-"""Gymnasium envs on the real backends: env checker, vector envs, one-libsumo-per-process, PPO."""
+"""Gymnasium envs on the real backends: env checker, several SUMO envs per process, vector envs, SB3, bad input."""
 
 from __future__ import annotations
 
 import functools
 import subprocess
 import sys
-import textwrap
 
 import gymnasium as gym
 import numpy as np
@@ -13,6 +12,7 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import simharness.envs  # noqa: F401 - registers the ids
+from simharness.errors import UserError
 
 HW = {"duration": 4.0, "warmup": 8.0}
 SUMO = {"duration": 4.0, "warmup": 20.0}
@@ -32,7 +32,7 @@ def test_highway_env_passes_the_checker_and_renders():
     env.close()
 
 
-def test_highway_env_reward_terms_and_truncation():
+def test_highway_env_reward_terms_truncation_and_step_after_the_end():
     env = gym.make("simharness/HighwayDense-v0", config={**HW, "reward": {"progress": 1.0, "accel": 0.0,
                                                                              "jerk": 0.0, "lateral": 0.0}})
     env.reset(seed=2)
@@ -48,6 +48,31 @@ def test_highway_env_reward_terms_and_truncation():
         assert total == pytest.approx(info["progress_m"], rel=1e-6, abs=1e-6)
         assert trunc and steps == 20
     assert set(info) == {"t", "speed", "progress_m", "collided", "collisions", "min_ttc", "min_gap"}
+    with pytest.raises(RuntimeError, match="call reset"):
+        env.step(np.zeros(2, np.float32))
+    env.reset(seed=3)
+    env.step(np.zeros(2, np.float32))  # a new episode steps again
+    env.close()
+
+
+def test_observation_matches_the_frames():
+    """Row 0 is the ego at the origin heading +x; neighbours' positions are their world offsets rotated."""
+    env = gym.make("simharness/HighwayDense-v0", config={**HW, "num_agents": 6}).unwrapped
+    obs, _ = env.reset(seed=4)
+    for _ in range(3):
+        obs, *_ = env.step(np.array([0.3, 0.5], np.float32))
+    f = env._history.now
+    e = f.ego
+    assert np.allclose(obs[0, -1, :7], [1, 0, 0, f.speed[e] / 30, 0, 1, 0], atol=1e-5)
+    d = np.hypot(*(f.xy - f.xy[e]).T)
+    d[e] = np.inf
+    near = np.argsort(d)[:6]
+    c, s = np.cos(f.heading[e]), np.sin(f.heading[e])
+    rel = (f.xy[near] - f.xy[e]) @ np.array([[c, -s], [s, c]])
+    assert np.allclose(obs[1:, -1, 1:3], np.clip(rel / 60.0, -1, 1), atol=1e-5)
+    assert np.array_equal(obs[1:, -1, 9:].argmax(-1), f.agent_type[near])
+    # History: the ego's own past positions lie behind it (it drives forward).
+    assert obs[0, 0, 0] == 1.0 and obs[0, 0, 1] < 0
     env.close()
 
 
@@ -63,62 +88,135 @@ def test_forecast_observation_option():
     env.close()
 
 
-def test_unknown_config_key_is_refused():
-    from simharness.errors import UserError
+@pytest.mark.parametrize("config, message", [
+    ({"nope": 1}, "unknown key 'nope'"),
+    ({"duration": float("nan")}, "key 'duration': expected a finite number"),
+    ({"reward": {"progress": float("inf")}}, "key 'reward.progress': expected a finite number"),
+    ({"reward": {"speed": 1.0}}, "unknown reward term 'speed'"),
+    ({"obs_range": -5.0}, "key 'obs_range': expected > 0"),
+    ({"num_agents": 0}, "key 'num_agents': expected an integer >= 1"),
+    ({"warmup": float("-inf")}, "key 'warmup': expected a finite number"),
+    ({"overrides": {"demand_scale": float("nan")}}, "key 'overrides.demand_scale'"),
+])
+def test_bad_config_is_refused_in_one_line(config, message):
+    with pytest.raises(UserError, match=message) as err:
+        gym.make("simharness/HighwayDense-v0", config=config)
+    assert "\n" not in str(err.value)
 
-    with pytest.raises(UserError, match="unknown key 'nope'"):
-        gym.make("simharness/HighwayDense-v0", config={"nope": 1})
 
-
-SUMO_SCRIPT = textwrap.dedent("""
-    import numpy as np
-    from gymnasium.utils.env_checker import check_env
-    from simharness.envs import SumoDenseEnv
-    from simharness.errors import SimulatorError
-    cfg = {"duration": 4.0, "warmup": 20.0}
-    env = SumoDenseEnv(cfg, render_mode="rgb_array")   # built directly: a gym.make spec would make the
-    check_env(env)                                      # checker open a second libsumo simulation
-    img = env.render()
-    assert img.ndim == 3 and len(np.unique(img.reshape(-1, 3)[::37], axis=0)) > 5
-    print("CHECKED")
-    other = SumoDenseEnv(cfg)
-    try:
-        other.reset(seed=0)
-    except SimulatorError as e:
-        print("SECOND:", e)
+def test_bad_actions_are_refused_or_clipped():
+    env = gym.make("simharness/HighwayDense-v0", config=HW).unwrapped
+    env.reset(seed=6)
+    before = env._history.now.t
+    for bad in ([np.nan, 0.0], [0.0, np.inf], [-np.inf, np.nan]):
+        with pytest.raises(ValueError, match="not finite"):
+            env.step(np.array(bad, np.float32))
+    assert env._history.now.t == before  # nothing was stepped
+    with pytest.raises(ValueError, match="expected 2 values"):
+        env.step(np.zeros(3, np.float32))
+    # Out of range: clipped to [-1, 1] before scaling.
+    assert env.command(np.array([7.0, -3.0])) == env.command(np.array([1.0, -1.0]))
+    assert env.command(np.array([1.0, -1.0])).acceleration == pytest.approx(2.5)
+    assert env.command(np.array([-1.0, 1.0])).acceleration == pytest.approx(-7.0)
+    obs, reward, *_ = env.step(np.array([50.0, -50.0], np.float32))
+    assert np.isfinite(obs).all() and np.isfinite(reward)
     env.close()
-    other.reset(seed=0)
-    print("AFTER CLOSE OK")
-    other.close()
-""")
 
 
-def test_sumo_env_checker_and_one_simulation_per_process():
-    proc = subprocess.run([sys.executable, "-c", SUMO_SCRIPT], capture_output=True, text=True, timeout=240)
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    assert "CHECKED" in proc.stdout and "AFTER CLOSE OK" in proc.stdout
-    second = [line for line in proc.stdout.splitlines() if line.startswith("SECOND:")]
-    assert len(second) == 1 and "one simulation per process" in second[0]
-
-
-def _run_vector(vec: gym.vector.VectorEnv, steps: int = 5) -> None:
-    obs, info = vec.reset(seed=[0, 1])
-    assert obs.shape == (2, *vec.single_observation_space.shape)
-    assert not np.array_equal(obs[0], obs[1])  # different seeds, different traffic
+def _rollout(env: gym.Env, seed: int, steps: int = 6) -> tuple[np.ndarray, list[float]]:
+    rng = np.random.default_rng(seed)
+    obs, _ = env.reset(seed=seed)
+    seen, rewards = [obs], []
     for _ in range(steps):
-        obs, reward, term, trunc, info = vec.step(np.zeros((2, 2), np.float32))
-        assert reward.shape == (2,) and info["speed"].shape == (2,) and info["min_ttc"].shape == (2,)
+        obs, r, term, trunc, _ = env.step(rng.uniform(-1, 1, 2).astype(np.float32))
+        seen.append(obs)
+        rewards.append(r)
+        if term or trunc:
+            break
+    return np.stack(seen), rewards
+
+
+def test_highway_same_seed_same_rollout():
+    a, b = (gym.make("simharness/HighwayDense-v0", config=HW) for _ in range(2))
+    (oa, ra), (ob, rb), (oc, _) = _rollout(a, 7), _rollout(b, 7), _rollout(b, 8)
+    assert np.array_equal(oa, ob) and ra == rb
+    assert not np.array_equal(oa[0], oc[0])
+
+
+def test_several_sumo_envs_in_one_process():
+    """gym.make twice; the checker (it builds yet another env) with rendering; same seed, same rollout."""
+    first = gym.make("simharness/SumoDense-v0", config=SUMO)
+    second = gym.make("simharness/SumoDense-v0", config=SUMO, render_mode="rgb_array")
+    (oa, ra), (ob, rb) = _rollout(first, 3), _rollout(second, 3)
+    assert np.array_equal(oa, ob) and ra == rb and len(ra) >= 3
+    assert oa[-1, 1:, -1, 0].sum() >= 5  # dense: neighbours observed
+    check_env(second.unwrapped)
+    img = second.render()
+    assert img.ndim == 3 and len(np.unique(img.reshape(-1, 3)[::37], axis=0)) > 5
+    other, _ = _rollout(first, 4, steps=1)
+    assert not np.array_equal(other[0], oa[0])
+    first.close()
+    second.close()
+
+
+def test_sync_vector_env_with_four_sumo_envs():
+    vec = gym.vector.SyncVectorEnv([functools.partial(gym.make, SUMO_ID, config=SUMO)] * 4)
+    obs, _ = vec.reset(seed=[0, 1, 2, 0])
+    assert obs.shape == (4, *vec.single_observation_space.shape)
+    assert np.array_equal(obs[0], obs[3]) and not np.array_equal(obs[0], obs[1])
+    for _ in range(3):
+        obs, reward, term, trunc, info = vec.step(np.tile([[0.2, -0.1]], (4, 1)).astype(np.float32))
+        assert reward.shape == (4,) and info["min_ttc"].shape == (4,)
+    assert np.array_equal(obs[0], obs[3])
     vec.close()
-
-
-def test_sync_vector_env_highway():
-    _run_vector(gym.vector.SyncVectorEnv([functools.partial(gym.make, HW_ID, config=HW)] * 2))
 
 
 @pytest.mark.parametrize("env_id, cfg", [(HW_ID, HW), (SUMO_ID, SUMO)], ids=["highway", "sumo"])
 def test_async_vector_env(env_id, cfg):
-    # Each worker is its own process, so two SUMO envs run side by side.
-    _run_vector(gym.vector.AsyncVectorEnv([functools.partial(gym.make, env_id, config=cfg)] * 2, context="spawn"))
+    vec = gym.vector.AsyncVectorEnv([functools.partial(gym.make, env_id, config=cfg)] * 2, context="spawn")
+    obs, _ = vec.reset(seed=[0, 1])
+    assert not np.array_equal(obs[0], obs[1])  # different seeds, different traffic
+    for _ in range(3):
+        obs, reward, *_ = vec.step(np.zeros((2, 2), np.float32))
+        assert reward.shape == (2,)
+    vec.close()
+
+
+@pytest.mark.parametrize("vec", ["dummy", "subproc"])
+def test_sb3_make_vec_env_with_four_sumo_envs(vec):
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
+
+    cls = DummyVecEnv if vec == "dummy" else SubprocVecEnv
+    venv = make_vec_env(SUMO_ID, n_envs=4, seed=0, vec_env_cls=cls, env_kwargs={"config": SUMO})
+    obs = venv.reset()
+    assert obs.shape == (4, *venv.observation_space.shape)
+    assert not np.array_equal(obs[0], obs[1])  # make_vec_env seeds 0..3
+    dones = np.zeros(4, bool)
+    for _ in range(22):  # past the 20-step episode: the vec env resets itself
+        obs, reward, done, info = venv.step(np.zeros((4, 2), np.float32))
+        dones |= done
+        assert np.isfinite(obs).all() and np.isfinite(reward).all()
+    assert dones.all()
+    venv.close()
+
+
+def test_sb3_ppo_with_eval_callback_on_sumo():
+    import torch
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.callbacks import EvalCallback
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.monitor import Monitor
+
+    torch.set_num_threads(1)
+    venv = make_vec_env(SUMO_ID, n_envs=2, seed=0, env_kwargs={"config": SUMO})
+    eval_env = Monitor(gym.make(SUMO_ID, config=SUMO))  # a third SUMO env in this process
+    callback = EvalCallback(eval_env, eval_freq=16, n_eval_episodes=1, verbose=0)
+    model = PPO("MlpPolicy", venv, n_steps=16, batch_size=16, n_epochs=1, seed=0, verbose=0, device="cpu")
+    model.learn(total_timesteps=32, callback=callback)
+    assert callback.n_calls == 16 and np.isfinite(callback.last_mean_reward)  # evaluated once, a full episode
+    venv.close()
+    eval_env.close()
 
 
 def _ppo(env_id: str, cfg: dict, steps: int) -> float:

@@ -1,0 +1,57 @@
+"""Gymnasium environments over the harness's scenarios: drive the ego through dense mixed traffic.
+
+`import simharness.envs` registers
+
+- ``simharness/SumoDense-v0``: the SUMO dense arterial; libsumo runs in a worker process per env
+  (`simharness.sim.sumo_process.SumoProcess`), so any number live in one process (``gym.make`` twice,
+  `SyncVectorEnv`, SB3's `DummyVecEnv` / `SubprocVecEnv`, `EvalCallback`);
+- ``simharness/HighwayDense-v0``: the highway-env mixed dense scenario.
+
+In a fresh process (e.g. an `AsyncVectorEnv` worker started by "spawn") use
+``gymnasium.make("simharness.envs:simharness/SumoDense-v0")``, which imports this package first.
+
+Configuration: ``gymnasium.make(id, config={...})``; keys and defaults in `DEFAULT_CONFIG`
+(`simharness.envs.config`, like highway-env's ``default_config()``); unknown keys, non-finite and
+out-of-range values are refused with one line (`UserError`).
+
+Observation (``Box(-1, 1, (K + 1, H, F))`` float32, `simharness.envs.observation`): the ego (row 0) and
+its K nearest agents (rows 1..K, nearest first) over the last H frames, in the ego's frame at the
+current step (x ahead, y left), features ``present, x / range, y / range, vx / 30, vy / 30, cos(dh),
+sin(dh), length / 15, width / 3`` and a one-hot `AgentType` (9), all clipped to [-1, 1]; ``present``
+(feature 0) is the mask: absent rows and frames are zero. With ``config["predictor"]`` set the
+observation is a Dict ``{"agents": that Box, "forecast": Box(-1, 1, (K, Ff, 3))}`` with each
+neighbour's forecast positions (present, x / range, y / range) over Ff frames from that predictor.
+
+Action (``Box(-1, 1, (2,))`` float32): ``a[0]`` longitudinal acceleration, ``a[0] * max_accel`` when
+positive and ``a[0] * max_decel`` when negative (m/s^2); ``a[1] * max_lateral_speed`` lateral velocity
+(m/s, + left); held for the next frame. Values outside [-1, 1] are clipped; NaN or infinite values
+raise ValueError (nothing is stepped). `DenseTrafficEnv.command(action)` gives the physical `EgoCommand`.
+
+Reward per step (weights in ``config["reward"]``, `simharness.envs.reward`): ``progress * metres made
+good along the ego's heading + collision * (1 on the first frame of each new ego contact) + accel * a^2
++ jerk * (da/dt)^2 + lateral * v_lat^2`` (the comfort weights are negative). An episode terminates on a
+collision (if ``terminate_on_collision``) or when the ego leaves the road, and is truncated after
+``duration`` s; ``step`` after either raises RuntimeError until ``reset``.
+
+``info`` holds fixed-shape scalars only (vector envs stack them): ``t``, ``speed``, ``progress_m``,
+``collided``, ``collisions``, ``min_ttc`` (s, capped at 10), ``min_gap`` (m, capped at 100).
+"""
+
+from __future__ import annotations
+
+import gymnasium as gym
+
+from simharness.envs.config import DEFAULT_CONFIG
+from simharness.envs.dense import DenseTrafficEnv, HighwayDenseEnv, SumoDenseEnv
+from simharness.envs.observation import FEATURES
+
+__all__ = ["DEFAULT_CONFIG", "FEATURES", "DenseTrafficEnv", "HighwayDenseEnv", "SumoDenseEnv"]
+
+
+def _register() -> None:
+    for env_id, cls in (("simharness/SumoDense-v0", "SumoDenseEnv"), ("simharness/HighwayDense-v0", "HighwayDenseEnv")):
+        if env_id not in gym.registry:
+            gym.register(id=env_id, entry_point=f"simharness.envs:{cls}")
+
+
+_register()

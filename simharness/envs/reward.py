@@ -1,0 +1,95 @@
+"""Ego safety at one frame and the per-step reward.
+
+Safety gives what `simharness.metrics.safety` gives over all agents (contact, time-to-collision
+sampled every 0.1 s up to the horizon, separating-axis gap) but only tests the agents that can decide
+the minimum, found by exact bounds on the centre distance: two boxes overlap only when their centres
+are within the sum of their half-diagonals (`reach`), so a pair is tested at the sampled times that
+fall in the interval where constant-velocity centres are that close; and a separating-axis gap lies
+between d / sqrt(2) - reach and d (d the centre distance), so only agents whose lower bound can beat
+the smallest upper bound are measured.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from simharness.metrics import safety
+from simharness.metrics.collisions import boxes_overlap
+from simharness.sim.base import Frame
+
+TTC_HORIZON = 3.0  # s
+TTC_STEP = 0.1  # s between sampled times
+TTC_CAP = 10.0  # s reported when no collision is foreseen
+GAP_CAP = 100.0  # m reported when nobody is closer
+_TAUS = np.arange(0.0, TTC_HORIZON + 1e-9, TTC_STEP)
+
+
+@dataclass(frozen=True)
+class EgoSafety:
+    """contact: the ego's box overlaps another now; ttc (s, <= TTC_CAP); gap (m, <= GAP_CAP)."""
+
+    contact: bool
+    ttc: float
+    gap: float
+
+
+def ego_safety(frame: Frame) -> EgoSafety:
+    """Contact, min time-to-collision and min gap of the ego at `frame` (which must hold the ego)."""
+    e = frame.ego
+    xy = frame.xy.astype(np.float64)
+    heading = frame.heading.astype(np.float64)
+    length, width = frame.length.astype(np.float64), frame.width.astype(np.float64)
+    rel = xy - xy[e]
+    d = np.hypot(rel[:, 0], rel[:, 1])
+    reach = 0.5 * np.hypot(length, width) + 0.5 * np.hypot(length[e], width[e]) + 1e-6
+    ttc = _min_ttc(frame, xy, heading, length, width, rel, d, reach)
+    # Gap: only agents whose lower bound d / sqrt(2) - reach can beat min(d) (an upper bound) or the cap.
+    others = np.arange(len(d)) != e
+    upper = min(float(d[others].min()) if others.any() else np.inf, GAP_CAP)
+    rows = np.flatnonzero(others & (d / np.sqrt(2.0) - reach <= upper))
+    gap = GAP_CAP
+    if rows.size:
+        sub = np.concatenate([[e], rows])
+        g = safety.min_gap(xy[sub][:, None], heading[sub][:, None], length[sub], width[sub],
+                           np.ones((sub.size, 1), bool), 0)
+        gap = min(float(g.min()), GAP_CAP)
+    return EgoSafety(ttc == 0.0, ttc, gap)
+
+
+def _min_ttc(frame: Frame, xy: np.ndarray, heading: np.ndarray, length: np.ndarray, width: np.ndarray,
+             rel: np.ndarray, d: np.ndarray, reach: np.ndarray) -> float:
+    """First sampled time (s) the ego's box overlaps another's under constant velocity; TTC_CAP if none."""
+    e = frame.ego
+    speed = frame.speed.astype(np.float64)
+    vel = speed[:, None] * np.stack([np.cos(heading), np.sin(heading)], -1)
+    dv = vel - vel[e]
+    # |rel + dv tau| <= reach  <=>  a tau^2 + 2 b tau + c <= 0
+    a, b, c = (dv ** 2).sum(-1), (rel * dv).sum(-1), d ** 2 - reach ** 2
+    disc = b ** 2 - a * c
+    ok = (disc >= 0) & ((c <= 0) | (a > 0))
+    ok[e] = False
+    root = np.sqrt(np.maximum(disc, 0.0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        lo = np.where(c <= 0, 0.0, (-b - root) / a)
+        hi = np.where(a > 0, (-b + root) / a, np.inf)
+    ok &= (hi >= 0) & (lo <= TTC_HORIZON)
+    rows = np.flatnonzero(ok)
+    if rows.size == 0:
+        return TTC_CAP
+    window = (_TAUS[None] >= lo[rows, None] - 1e-6) & (_TAUS[None] <= hi[rows, None] + 1e-6)  # (P, K)
+    p, k = np.nonzero(window)
+    r, tau = rows[p], _TAUS[k]
+    hit = boxes_overlap(xy[r] + vel[r] * tau[:, None], heading[r], length[r], width[r],
+                        xy[e] + vel[e] * tau[:, None], np.full(r.size, heading[e]), np.full(r.size, length[e]),
+                        np.full(r.size, width[e]))
+    return float(tau[hit].min()) if hit.any() else TTC_CAP
+
+
+def step_reward(weights: dict[str, float], moved: float, new_contact: bool, accel: float, prev_accel: float,
+                lateral_speed: float, dt: float) -> float:
+    """``progress * moved (m) + collision * new_contact + accel * a^2 + jerk * (da/dt)^2 + lateral * v_lat^2``."""
+    return (weights["progress"] * moved + weights["collision"] * float(new_contact)
+            + weights["accel"] * accel ** 2 + weights["jerk"] * ((accel - prev_accel) / dt) ** 2
+            + weights["lateral"] * lateral_speed ** 2)
