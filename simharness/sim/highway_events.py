@@ -10,8 +10,9 @@ predictors that extrapolate the past do not.
 
 Placement (ego front x_f, centre line y_e, speed v_e at `at`): the actor's rear at
 x_f + ahead + ahead_time * v_e, its centre at y_e + side (kept on the carriageway); step_out and
-pull_out put the bus against the kerb on the side of `side` (right when 0), and step_out's
-pedestrian just in front of the bus, on the kerb line, crossing the whole carriageway.
+pull_out put the bus against the kerb on the side of `side` (right when 0); step_out puts its
+pedestrian there on the kerb line, the stopped bus just behind it (between it and the ego: the
+pedestrian goes at least a bus length + 1 m ahead), and the pedestrian then crosses the whole carriageway.
 """
 
 from __future__ import annotations
@@ -102,8 +103,9 @@ class EventScript:
                 placed.append((actor_type, front + 0.5 * bl, bus_y, speed if sp["speed"] >= 0 else 0.0))
             else:
                 pl, pw = float(PARAMS["length"][actor_type]), float(PARAMS["width"][actor_type])
-                placed.append((actor_type, front + bl + 0.5 + 0.5 * pl, kerb * (hw - 0.5 * pw - KERB_GAP), 0.0))
-                placed.append((bus, front + 0.5 * bl, bus_y, 0.0))
+                front = max(front, s.x[e] + 0.5 * s.length[e] + bl + 1.0)  # the bus must fit in front of the ego
+                placed.append((actor_type, front + 0.5 * pl, kerb * (hw - 0.5 * pw - KERB_GAP), 0.0))
+                placed.append((bus, front - 0.5 - 0.5 * bl, bus_y, 0.0))  # just behind the pedestrian
         else:
             al, aw = float(PARAMS["length"][actor_type]), float(PARAMS["width"][actor_type])
             lim = hw - 0.5 * aw - KERB_GAP
