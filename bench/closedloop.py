@@ -32,8 +32,8 @@ from simharness.closedloop import (  # noqa: E402
     scorecard_table,
     write_run,
 )
+from simharness.closedloop.page import write_report  # noqa: E402
 from simharness.errors import UserError  # noqa: E402
-from simharness.report import write_report  # noqa: E402
 from simharness.scenario import load_scenario  # noqa: E402
 
 EGOS = ("traphic", "const-vel", "oracle", "static", "none")

@@ -158,7 +158,7 @@ def test_lookahead_oracle_is_exact_on_highway_when_ignored():
 def test_collision_boxes_take_the_simulators_body_heading():
     """Two cars 0.2 m apart side by side, edging sideways at walking pace: their heading of motion turns
     30 degrees, their (SUMO, lane-aligned) bodies do not; only the bodies are scored."""
-    from simharness.closedloop import _Issued
+    from simharness.closedloop import Issued as _Issued
 
     t = 3
     xy = np.array([[[-40.0, 0.0]] * t, [[0.0, 1.0]] * t, [[0.0, -1.0]] * t])

@@ -8,8 +8,16 @@ from simharness.sim.base import EgoCommand, Event, Frame, RoadGeometry, Simulato
 __all__ = ["EgoCommand", "Event", "Frame", "RoadGeometry", "Simulator", "make_simulator", "scene_from_frames"]
 
 
-def make_simulator(spec: ScenarioSpec) -> Simulator:
-    """The backend the scenario names; imported lazily so one backend's deps never load the other."""
+def make_simulator(spec: ScenarioSpec, process: bool = False) -> Simulator:
+    """The backend the scenario names; imported lazily so one backend's deps never load the other.
+
+    process: for sumo, run libsumo in a worker process (`SumoProcess`: any number per process, and
+    `branch()`); the highway backend is plain Python and always runs in this process.
+    """
+    if spec.backend == "sumo" and process:
+        from simharness.sim.sumo_process import SumoProcess
+
+        return SumoProcess(spec)
     if spec.backend == "sumo":
         from simharness.sim.sumo import SumoSimulator
 

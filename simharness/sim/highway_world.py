@@ -26,11 +26,11 @@ from highway_env.road.lane import LineType, StraightLane
 from highway_env.road.road import Road, RoadNetwork
 
 from simharness.metrics.collisions import boxes_overlap
-from simharness.report import EGO_COLOR, TYPE_COLORS
 from simharness.scene import AgentType
 from simharness.sim.highway_agents import AGENT_CLASSES, PARAMS, HeteroAgent
 from simharness.sim.highway_events import EventScript
 from simharness.sim.highway_traffic import B_EGO, Traffic
+from simharness.style import EGO_COLOR, TYPE_COLORS
 
 
 def agent_color(agent_type: AgentType, is_ego: bool) -> str:
