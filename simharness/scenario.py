@@ -198,7 +198,7 @@ def resolve_scenario_path(name_or_path: str | Path) -> Path:
     """A path as given, or a shipped scenario by name ("sumo_arterial_dense")."""
     p = Path(name_or_path)
     if p.suffix != ".toml" and not p.exists():
-        shipped = SCENARIO_DIR / f"{p.name}.toml"
+        shipped = SCENARIO_DIR / f"{p}.toml"  # "sumo_arterial_dense", or "stress/step_out"
         if shipped.exists():
             return shipped
     return p
@@ -208,7 +208,8 @@ def load_scenario(name_or_path: str | Path) -> ScenarioSpec:
     """Read and validate a scenario file; UserError (one line) on any mistake."""
     path = resolve_scenario_path(name_or_path)
     if not path.is_file():
-        shipped = ", ".join(sorted(p.stem for p in SCENARIO_DIR.glob("*.toml")))
+        shipped = ", ".join(sorted(p.relative_to(SCENARIO_DIR).with_suffix("").as_posix()
+                                   for p in SCENARIO_DIR.glob("**/*.toml")))
         raise UserError(f"{path}: scenario file not found (shipped scenarios: {shipped})")
     try:
         data = tomllib.loads(path.read_text(encoding="utf-8"))
