@@ -100,6 +100,40 @@ def discriminates(rows: dict[str, dict]) -> str:
     return f"{'yes' if ok else 'NO'} (oracle {o:.2f}, const-vel {c:.2f}, static {s:.2f})"
 
 
+def markdown(table: dict[str, dict[str, dict]], openloop: dict[str, dict[str, dict]], seeds: list[int]) -> str:
+    """The suite as Markdown: per scenario the closed-loop figures, then the leaderboard with open-loop ranks."""
+    score = "composite_score" if any("composite_score" in r for rows in table.values() for r in rows.values()) \
+        else None
+    lines = [f"Closed loop, seeds {seeds[0]}-{seeds[-1]} ({len(seeds)} per cell), mean [95% bootstrap CI].", "",
+             "| scenario | predictor | at-fault collision rate | collision rate | composite score | near misses / min "
+             "| progress (m) | online ADE (m) | s / episode |", "|" + "---|" * 9]
+    for sc, rows in table.items():
+        for name, r in rows.items():
+            lines.append(f"| {sc} | {name} | {fmt(r.get('at_fault_collision_rate'))} | {fmt(r.get('collision_rate'))} "
+                         f"| {fmt(r.get('composite_score'))} | {fmt(r.get('near_misses_per_min'))} "
+                         f"| {fmt(r.get('progress_m'))} | {fmt(r.get('online_ade'))} "
+                         f"| {r['mean_episode_wall_s']:.1f} |")
+    lines += ["", "| scenario | discriminating (at-fault rate: oracle <= 0.02, static >= 0.30, const-vel between) |",
+              "|---|---|"]
+    lines += [f"| {sc} | {discriminates(rows)} |" for sc, rows in table.items()]
+    if openloop:
+        key = score or "at_fault_collision_rate"
+        lines += ["", f"Open-loop ADE / FDE (m) on data generated from each scenario beside the closed-loop "
+                  f"{'composite score (higher is better)' if score else 'at-fault rate (lower is better)'}; "
+                  "ranks among the forecasting predictors.", "",
+                  "| scenario | predictor | open-loop ADE / FDE | open-loop rank | closed-loop "
+                  f"{'score' if score else 'at-fault rate'} | closed-loop rank |", "|---|---|---|---|---|---|"]
+        for sc, ol in openloop.items():
+            names = [n for n in ol if n in table[sc]]
+            ol_rank = {n: i + 1 for i, n in enumerate(sorted(names, key=lambda n: ol[n]["ade"]))}
+            sign = -1 if score else 1
+            cl_rank = {n: i + 1 for i, n in enumerate(sorted(names, key=lambda n: sign * table[sc][n][key]["mean"]))}
+            for n in names:
+                lines.append(f"| {sc} | {n} | {ol[n]['ade']:.2f} / {ol[n]['fde']:.2f} | {ol_rank[n]} "
+                             f"| {fmt(table[sc][n][key])} | {cl_rank[n]} |")
+    return "\n".join(lines) + "\n"
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--scenarios", default=",".join(STRESS), help="stress scenario names (default: all)")
@@ -124,12 +158,15 @@ def main() -> int:
                   f"{fmt(r.get('composite_score')):>20} {fmt(r.get('near_misses_per_min')):>20} "
                   f"{fmt(r.get('online_ade')):>20} {r['mean_episode_wall_s']:9.1f}")
         print(f"{sc:10} discriminating: {discriminates(rows)}")
+    openloop: dict[str, dict[str, dict]] = {}
     if a.open_loop_seeds:
         names = [s.strip() for s in a.open_loop_predictors.split(",") if s.strip()]
         print(f"Open loop (generated seeds {a.open_loop_seeds[0]}-{a.open_loop_seeds[-1]}, split all): ADE / FDE (m)")
         for sc in scenarios:
-            ol = open_loop(sc, names, a.open_loop_seeds, a.workers, a.out)
-            print(f"{sc:10} " + "  ".join(f"{n} {m['ade']:.2f}/{m['fde']:.2f}" for n, m in ol.items()))
+            openloop[sc] = open_loop(sc, names, a.open_loop_seeds, a.workers, a.out)
+            print(f"{sc:10} " + "  ".join(f"{n} {m['ade']:.2f}/{m['fde']:.2f}" for n, m in openloop[sc].items()))
+    (a.out / "stress.md").write_text(markdown(table, openloop, a.seeds))
+    print(f"wrote {a.out / 'stress.md'}")
     return 0
 
 
