@@ -182,6 +182,17 @@ def build_parser() -> argparse.ArgumentParser:
     w.add_argument("--out", type=Path, default=Path("runs/sweep"))
     force(w)
 
+    se = sub.add_parser("sensitivity", parents=[executor_args],
+                        help="closed loop over a grid of forecast perturbations (what prediction error costs)")
+    se.set_defaults(func=_call("simharness.closedloop.sensitivity:sensitivity_command"))
+    se.add_argument("scenario", help="scenario file, or a shipped name (stress/step_out)")
+    se.add_argument("--predictor", default="oracle", help="oracle (default), static, const-vel, traphic, a run folder")
+    se.add_argument("--perturb", action="append", default=[],
+                    help="KEY=V1,V2,... (repeatable: a grid), keys noise (m), latency (frames), speed (x), "
+                         "heading (deg), drop (agent type), sigma (x); e.g. noise=0,0.5,1,2,4")
+    se.add_argument("--seeds", type=parse_seeds, default=[0], help="e.g. 0-49")
+    se.add_argument("--out", type=Path, default=Path("runs/sensitivity"))
+
     sc = cmd("scenario", "simharness.scenario:scenario_command", "validate a scenario file, or list the keys")
     sc.add_argument("scenario", nargs="?", help="file to check; omit to print every key with its default")
     return p

@@ -90,6 +90,43 @@ class EgoSpec:
         "reactive", "background agents towards the ego: reactive, cut_in (no lateral yield), ignore")
 
 
+EVENT_KINDS = ("brake", "cut_in", "step_out", "pull_out", "merge")
+EVENT_ACTORS = {"brake": "truck", "cut_in": "motorcycle", "step_out": "pedestrian", "pull_out": "bus",
+                "merge": "rickshaw"}  # the actor each kind places when `actor` is left empty
+
+
+@dataclasses.dataclass(frozen=True)
+class EventSpec:
+    """One scripted event (`[[events]]`): an actor placed relative to the ego at `at`, then a manoeuvre.
+
+    The actor is scripted from its placement on (it ignores everyone, the ego included), so what it
+    does is a function of time alone and an oracle that branches the simulation sees it exactly.
+    """
+
+    kind: Literal["brake", "cut_in", "step_out", "pull_out", "merge"] = _f(
+        "brake", "brake: a lead brakes hard; cut_in: an agent beside moves into the ego's band and brakes; "
+        "step_out: a pedestrian steps out from in front of a stopped bus; pull_out: a stopped bus pulls out "
+        "into the ego's band; merge: a slow agent joins from the edge into the ego's band")
+    actor: str = _f("", "AgentType of the actor; empty: truck, motorcycle, pedestrian, bus, rickshaw by kind")
+    at: float = _f(2.0, "seconds after warm-up at which the actor is placed (skipped if the ego is absent)",
+                   0.0, 3600.0)
+    ahead: float = _f(10.0, "m from the ego's front to the actor's rear at placement (negative: beside/behind)",
+                      -50.0, 200.0)
+    ahead_time: float = _f(0.0, "s of the ego's speed added to `ahead` (placement scales with the ego's speed)",
+                           0.0, 20.0)
+    side: float = _f(0.0, "m from the ego's centre line to the actor's at placement, + left (step_out, "
+                     "pull_out: which kerb, by sign; 0 = right)", -20.0, 20.0)
+    speed: float = _f(-1.0, "actor speed at placement (m/s); negative: the ego's speed", -1.0, 45.0)
+    delay: float = _f(1.0, "s after placement at which the manoeuvre starts", 0.0, 600.0)
+    decel: float = _f(6.0, "m/s^2 of braking during the manoeuvre (brake, cut_in)", 0.0, 12.0)
+    accel: float = _f(1.5, "m/s^2 of acceleration towards end_speed (pull_out, merge)", 0.0, 6.0)
+    end_speed: float = _f(0.0, "m/s the actor brakes or accelerates to during the manoeuvre", 0.0, 45.0)
+    lateral_speed: float = _f(1.5, "m/s of sideways motion towards the target (cut_in, step_out, pull_out, "
+                              "merge)", 0.0, 6.0)
+    target: float = _f(0.0, "m, + left: where the actor moves, from the ego's centre line at the manoeuvre "
+                       "start (step_out: ignored, the pedestrian crosses the whole carriageway)", -20.0, 20.0)
+
+
 @dataclasses.dataclass(frozen=True)
 class ScenarioSpec:
     """A whole scenario file. `path` and `source_text` are filled by the loader."""
@@ -110,6 +147,8 @@ class ScenarioSpec:
     behaviour: BehaviourSpec = _f(None, "driver behaviour", factory=BehaviourSpec)
     sublane: SublaneSpec = _f(None, "lateral (lane-less) movement", factory=SublaneSpec)
     ego: EgoSpec = _f(None, "the harness-driven ego agent", factory=EgoSpec)
+    events: tuple[EventSpec, ...] = _f(None, "scripted events, [[events]] tables (highway backend)",
+                                       factory=tuple)
     path: str = dataclasses.field(default="", metadata={"internal": True})
 
     @property
@@ -132,6 +171,8 @@ class ScenarioSpec:
     def to_dict(self) -> dict[str, Any]:
         d = dataclasses.asdict(self)
         d.pop("path")
+        if not d["events"]:  # scenarios without events keep the config hash they had before events existed
+            d.pop("events")
         return d
 
     def config_hash(self) -> str:
@@ -158,7 +199,7 @@ def resolve_scenario_path(name_or_path: str | Path) -> Path:
     """A path as given, or a shipped scenario by name ("sumo_arterial_dense")."""
     p = Path(name_or_path)
     if p.suffix != ".toml" and not p.exists():
-        shipped = SCENARIO_DIR / f"{p.name}.toml"
+        shipped = SCENARIO_DIR / f"{p}.toml"  # "sumo_arterial_dense", or "stress/step_out"
         if shipped.exists():
             return shipped
     return p
@@ -168,7 +209,8 @@ def load_scenario(name_or_path: str | Path) -> ScenarioSpec:
     """Read and validate a scenario file; UserError (one line) on any mistake."""
     path = resolve_scenario_path(name_or_path)
     if not path.is_file():
-        shipped = ", ".join(sorted(p.stem for p in SCENARIO_DIR.glob("*.toml")))
+        shipped = ", ".join(sorted(p.relative_to(SCENARIO_DIR).with_suffix("").as_posix()
+                                   for p in SCENARIO_DIR.glob("**/*.toml")))
         raise UserError(f"{path}: scenario file not found (shipped scenarios: {shipped})")
     try:
         data = tomllib.loads(path.read_text(encoding="utf-8"))
@@ -192,6 +234,15 @@ def parse_scenario(data: dict[str, Any], where: str) -> ScenarioSpec:
                         f"frame (1/record_hz = {spec.dt} s)")
     if abs(spec.dt / spec.step_length - round(spec.dt / spec.step_length)) > 1e-6:
         raise UserError(f"{where}: key 'record_hz': 1/record_hz must be a whole number of step_length")
+    for i, ev in enumerate(spec.events):
+        try:
+            AgentType.parse(ev.actor or EVENT_ACTORS[ev.kind])
+        except UserError:
+            raise UserError(f"{where}: key 'events[{i}].actor': unknown agent type {ev.actor!r}; "
+                            f"expected one of {', '.join(LABELS)}") from None
+    if spec.events and not spec.ego.enabled:
+        raise UserError(f"{where}: key 'events': scripted events are placed relative to the ego; "
+                        "expected ego.enabled = true")
     if not spec.flows() and spec.pedestrians.crossing_rate + spec.pedestrians.walking_rate == 0:
         raise UserError(f"{where}: key 'demand': no agents at all; expected at least one positive flow")
     return spec
@@ -236,6 +287,11 @@ def _check(hint: Any, value: Any, meta: Any, where: str, key: str) -> Any:
                 raise UserError(f"{where}: key '{key}.{k}': unknown agent type; expected one of {allowed}")
             out[k] = _check(float, v, meta, where, f"{key}.{k}")
         return out
+    if origin is tuple:  # a list of tables ([[events]])
+        item = typing.get_args(hint)[0]
+        if not isinstance(value, (list, tuple)):
+            raise bad("a list of tables ([[...]])")
+        return tuple(_build(item, v, where, f"{key}[{i}].") for i, v in enumerate(value))
     if origin in (typing.Union, types.UnionType):  # pragma: no cover - unused so far
         raise TypeError(hint)
     if hint is bool:
@@ -270,6 +326,10 @@ def describe_schema() -> str:
             if dataclasses.is_dataclass(hints[f.name]):
                 lines.append(f"[{prefix}{f.name}]  {f.metadata['doc']}")
                 walk(hints[f.name], prefix + f.name + ".")
+                continue
+            if typing.get_origin(hints[f.name]) is tuple:
+                lines.append(f"[[{prefix}{f.name}]]  {f.metadata['doc']}")
+                walk(typing.get_args(hints[f.name])[0], prefix + f.name + ".")
                 continue
             default = f.default if f.default is not dataclasses.MISSING else "{}"
             lines.append(f"  {prefix}{f.name} = {default!r}  # {f.metadata['doc']}")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 
+from simharness.closedloop.perturbations import Perturbation
 from simharness.scenario import ScenarioSpec
 from simharness.scene import Forecast
 
@@ -31,6 +32,7 @@ class EpisodeJob:
     config: LoopConfig = LoopConfig()
     keep_forecasts: bool = False  # return every forecast (for animations)
     keep_scene: bool = True
+    perturbation: Perturbation | None = None  # degrade the predictor's forecasts (closedloop.perturbations)
 
 
 @dataclasses.dataclass

@@ -30,6 +30,7 @@ import numpy as np
 
 from simharness.closedloop.config import EpisodeJob, Issued, LoopConfig
 from simharness.closedloop.oracles import CLONABLE_BACKENDS, LookaheadOracle, ReplayOracle, StaticForecast
+from simharness.closedloop.perturbations import Perturbation, PerturbedPredictor
 from simharness.closedloop.scoring import score_episode
 from simharness.errors import UserError
 from simharness.planners import BackgroundPlanner, ConstantSpeedPlanner, EgoLimits, Planner, SamplingPlanner
@@ -86,8 +87,9 @@ def simulate(spec: ScenarioSpec, seed: int, predictor: Predictor | None, planner
         road = sim.road
         if hasattr(planner, "set_road"):  # the drivable area is only known once the simulator is built
             planner.set_road(road)
-        if isinstance(predictor, LookaheadOracle):
-            predictor.sim = sim
+        inner = getattr(predictor, "inner", predictor)  # a PerturbedPredictor's own predictor
+        if isinstance(inner, LookaheadOracle):
+            inner.sim = sim
         timing["reset"] += time.perf_counter() - t0
         ego_frames, latest, latest_at = 0, None, -1
         for k in range(spec.num_frames - 1):
@@ -169,6 +171,8 @@ def run_episode(job: EpisodeJob) -> dict[str, Any]:
         reference_s = time.perf_counter() - wall0
     elif job.predictor not in REFERENCE_EGOS:
         predictor = _predictor(job.predictor)
+    if job.perturbation is not None and predictor is not None and not job.perturbation.is_identity:
+        predictor = PerturbedPredictor(predictor, job.perturbation, seed=job.seed)
     scene, issued, road, timing = simulate(spec, job.seed, predictor, make_planner(job.predictor, spec, None), cfg)
     wall = time.perf_counter() - wall0
     scene.meta.update({"predictor": job.predictor, "scene_id": f"{_slug(job.predictor)}-seed{job.seed:06d}"})
@@ -194,7 +198,8 @@ def _slug(name: str) -> str:
 
 def run_closed_loop(spec: ScenarioSpec, predictor: str, seeds: Sequence[int], workers: int = 2,
                     executor: str = "local", address: str | None = None, config: LoopConfig | None = None,
-                    keep_forecasts: Sequence[int] = (), progress: bool = True) -> list[dict[str, Any]]:
+                    keep_forecasts: Sequence[int] = (), progress: bool = True,
+                    perturbation: Perturbation | None = None) -> list[dict[str, Any]]:
     """Episodes of one predictor over seeds through an executor; results sorted by seed.
 
     Failed episodes raise SimulatorError naming the seeds (scores over a silent subset would mislead).
@@ -207,7 +212,8 @@ def run_closed_loop(spec: ScenarioSpec, predictor: str, seeds: Sequence[int], wo
     config = config or LoopConfig()
     if predictor not in REFERENCE_EGOS:
         _predictor(predictor)  # fail fast on a bad name, before any process starts
-    jobs = [EpisodeJob(spec, s, predictor, config, keep_forecasts=s in set(keep_forecasts)) for s in seeds]
+    jobs = [EpisodeJob(spec, s, predictor, config, keep_forecasts=s in set(keep_forecasts),
+                       perturbation=perturbation) for s in seeds]
     results, failed = [], []
     bar = tqdm(total=len(jobs), desc=f"closedloop {predictor}", unit="ep", file=sys.stderr, disable=not progress)
     for r in make_executor(executor, workers, address).map_unordered(run_episode, jobs):

@@ -11,6 +11,7 @@ line, + left of the direction of travel (here equal to y).
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import numpy as np
@@ -56,6 +57,7 @@ def config_from_spec(spec: ScenarioSpec) -> dict[str, Any]:
         "warmup": spec.warmup,
         "duration": spec.duration,
         "ego": ego,
+        "events": [dataclasses.asdict(e) for e in spec.events],
     }
 
 

@@ -19,6 +19,7 @@ from simharness.scene import AgentType
 from simharness.sim import highway_dynamics as dyn
 from simharness.sim.highway_agents import PARAMS
 from simharness.sim.highway_dynamics import CROSSING, VEHICLE, WALKING, TrafficState
+from simharness.sim.highway_events import EventScript
 
 EDGE_GAP = 0.2  # m kept between a vehicle and the carriageway edge
 PED_SPACING = 1.5  # m along the road between two crossing pedestrians at their start
@@ -63,6 +64,7 @@ class Traffic:
         self.next_crossing = (self.rng.exponential(3600.0 / config["crossing_rate"])
                               if config["crossing_rate"] > 0 else np.inf)
         self.lane_centres = self._lane_centres()
+        self.script: EventScript | None = None  # scripted events (highway_events), set by the env after warm-up
 
     # ------------------------------------------------------------------ lookup
     def row_of(self, uid: int, missing: int | None = None) -> int:
@@ -235,10 +237,11 @@ class Traffic:
         """Advance all agents by dt seconds. ego_command: (acceleration m/s^2, lateral velocity m/s, + left)
         or None (the ego drives like the background). Returns [(event kind, agent id)]."""
         self._arrivals()
+        script = self.script.commands(self, dt) if self.script is not None else None
         s = self.state
         events: list[tuple[str, str]] = []
         if s.n:
-            events = self._move(s, dt, ego_command)
+            events = self._move(s, dt, ego_command, script)
         self._remove_departed()
         self.time += dt
         self.steps += 1
@@ -259,9 +262,13 @@ class Traffic:
                 lat[np.ix_(bg, ego)] = False  # re-added below for side-by-side only
         return sees, lat
 
-    def _move(self, s: TrafficState, dt: float, ego_command: tuple[float, float] | None) -> list[tuple[str, str]]:
+    def _move(self, s: TrafficState, dt: float, ego_command: tuple[float, float] | None,
+              script: tuple[np.ndarray, np.ndarray] | None = None) -> list[tuple[str, str]]:
+        """script: (acceleration, lateral speed) (n,) of scripted actors, nan for everyone else."""
         n = s.n
         commanded = s.is_ego & (ego_command is not None)
+        scripted = np.zeros(n, bool) if script is None else np.isfinite(script[0])
+        fixed = commanded | scripted  # driven from outside the traffic model: no clamps, no own decisions
         heading = s.headings()
         hx, hy = dyn.half_extents(s.length, s.width, heading)
         pw = dyn.pairwise(s.x, s.y, hx, hy)
@@ -279,10 +286,12 @@ class Traffic:
         if commanded.any():
             a_ego = float(np.clip(ego_command[0], -B_EGO, PARAMS["a_max"][s.agent_type[commanded][0]]))
             acc = np.where(commanded, a_ego, acc)
+        if scripted.any():
+            acc = np.where(scripted, script[0], acc)
         v_max = PARAMS["v_max"][s.agent_type]
         v_new = np.clip(s.vx + acc * dt, 0.0, v_max)
-        v_new = dyn.clamp_to_leaders(v_new, leader, gap, dt, commanded, s.kind == CROSSING)
-        hard = (s.vx - v_new > dyn.B_EMERGENCY * dt + 1e-9) & ~commanded
+        v_new = dyn.clamp_to_leaders(v_new, leader, gap, dt, fixed, s.kind == CROSSING)
+        hard = (s.vx - v_new > dyn.B_EMERGENCY * dt + 1e-9) & ~fixed
         events = [("emergency_stop", str(a)) for a in s.agent_id[hard]]
         self.emergency_stops += int(hard.sum())
 
@@ -291,7 +300,7 @@ class Traffic:
         if self.ego_reaction == "cut_in" and s.is_ego.any():
             window |= (~s.is_ego)[:, None] & s.is_ego[None, :] & (pw.gap < self.min_gap_lat)
         room_l, room_r = dyn.lateral_room(pw, window)
-        self._decide_targets(s, pw, hy, lo, hi, sees, room_l, room_r, commanded, dt)
+        self._decide_targets(s, pw, hy, lo, hi, sees, room_l, room_r, fixed, dt)
         speed_share = np.clip(s.vx / 4.0, 0.0, 1.0)  # no sideways motion without forward speed
         vy_lim = s.vy_max * speed_share
         vy_des = np.clip(dyn.LAT_GAIN * (s.y_target - s.y), -vy_lim, vy_lim)
@@ -299,6 +308,8 @@ class Traffic:
         vy = np.where(s.kind == CROSSING, walking_now * s.cross_dir * s.v0, np.where(s.kind == WALKING, 0.0, vy))
         if commanded.any():
             vy = np.where(commanded, np.clip(ego_command[1], -vy_lim, vy_lim), vy)
+        if scripted.any():
+            vy = np.where(scripted, script[1], vy)
         move = vy * dt
         up = np.maximum(0.0, 0.5 * (room_l - self.min_gap_lat))
         down = np.maximum(0.0, 0.5 * (room_r - self.min_gap_lat))
@@ -307,8 +318,9 @@ class Traffic:
         edge_down = np.maximum(0.0, self.half_width - EDGE_GAP * ~commanded + (s.y - hy))
         up = np.where(commanded, edge_up, np.where(is_veh, np.minimum(up, edge_up), up))
         down = np.where(commanded, edge_down, np.where(is_veh, np.minimum(down, edge_down), down))
+        up, down = np.where(scripted, np.inf, up), np.where(scripted, np.inf, down)  # the script keeps them on
         move = np.clip(move, -down, up)
-        turning = (s.kind != CROSSING) & ~commanded
+        turning = (s.kind != CROSSING) & ~fixed
         move = np.where(turning, dyn.safe_lateral_moves(move, v_new, s.length, s.width, hy, up, down, dt), move)
 
         s.x = s.x + v_new * dt

@@ -28,6 +28,7 @@ from highway_env.road.road import Road, RoadNetwork
 from simharness.metrics.collisions import boxes_overlap
 from simharness.scene import AgentType
 from simharness.sim.highway_agents import AGENT_CLASSES, PARAMS, HeteroAgent
+from simharness.sim.highway_events import EventScript
 from simharness.sim.highway_traffic import B_EGO, Traffic
 from simharness.style import EGO_COLOR, TYPE_COLORS
 
@@ -144,6 +145,7 @@ class HeteroHighwayEnv(AbstractEnv):
             "decision_period": 0.5,  # [s] how often each vehicle re-chooses its lateral offset
             "warmup": 60.0,  # [s] run unobserved at reset after filling the road
             "duration": 60.0,  # [s] episode length (truncation)
+            "events": [],  # scripted events: scenario.EventSpec fields as dicts (see highway_events)
             "ego": None,  # {"type": "car", "insert_at": 0.0, "speed": 8.0, "reaction": "reactive"|"cut_in"|"ignore"}
             "observation_count": 32,  # agents in the observation
             "screen_width": 1200,  # [px]
@@ -204,6 +206,8 @@ class HeteroHighwayEnv(AbstractEnv):
             self.traffic.step(1.0 / self.sim_frequency)
         self.warmup_s = self.traffic.time
         self.traffic.emergency_stops = 0  # count from the end of warm-up
+        if c.get("events"):
+            self.traffic.script = EventScript(list(c["events"]), self.traffic.time)
         self._maybe_insert_ego()
 
     @property

@@ -28,7 +28,7 @@ from xml.etree import ElementTree
 
 import numpy as np
 
-from simharness.errors import SimulatorError
+from simharness.errors import SimulatorError, UserError
 from simharness.scenario import ScenarioSpec
 from simharness.scene import DEFAULT_FOOTPRINT, AgentType
 from simharness.sim.base import EgoCommand, Event, Frame, RoadGeometry
@@ -57,6 +57,9 @@ class SumoSimulator:
     def __init__(self, spec: ScenarioSpec) -> None:
         if spec.backend != "sumo":
             raise ValueError(f"SumoSimulator needs a sumo scenario, got backend {spec.backend!r}")
+        if spec.events:
+            raise UserError(f"{spec.path or spec.name}: key 'events': scripted events run on the highway "
+                            "backend only; expected backend = \"highway\"")
         self.spec = spec
         self.dt = spec.dt
         self._folder = Path(tempfile.mkdtemp(prefix="simharness_sumo_"))

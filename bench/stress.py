@@ -1,0 +1,174 @@
+"""Stress-suite benchmark: every predictor on every `scenarios/stress/*.toml`, closed loop and open loop.
+
+1. Closed loop: per (scenario, predictor) over the scored seeds (default 0-49; the scenarios were tuned
+   on seeds 1000+): collision rate, at-fault collision rate, near misses per minute, progress, the
+   composite score (where the loop computes one) and the online ADE, mean [95% bootstrap CI]; then,
+   per scenario, whether it discriminates: oracle at-fault rate <= 0.02, static >= 0.30, constant
+   velocity strictly between.
+2. Open loop (--open-loop-seeds): data generated from each scenario (`simharness generate`, the ego on
+   the simulator's own model) and each forecasting predictor scored on it (`simharness evaluate`,
+   --split all): ADE/FDE beside the closed-loop ranks.
+
+Each (scenario, predictor) result is kept under --out and reused on a rerun (delete it to remeasure).
+
+    .venv/bin/python bench/stress.py --seeds 0-49 --predictors oracle,static,const-vel,traphic
+    .venv/bin/python bench/stress.py --seeds 0-19 --predictors cs-lstm,none --open-loop-seeds 0-9
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+# bench/ holds a script named predictor.py: keep it from shadowing the `predictor` package.
+sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
+
+from simharness.cli import parse_seeds  # noqa: E402
+from simharness.closedloop import aggregate, prepare_spec, run_closed_loop  # noqa: E402
+from simharness.scenario import SCENARIO_DIR, load_scenario  # noqa: E402
+
+STRESS = sorted(p.stem for p in (SCENARIO_DIR / "stress").glob("*.toml"))
+FIGURES = ("at_fault_collision_rate", "collision_rate", "composite_score", "near_misses_per_min", "progress_m",
+           "online_ade")
+
+
+def closed_loop(scenario: str, predictor: str, seeds: list[int], workers: int, out: Path) -> dict:
+    """Aggregate scores of one predictor on one stress scenario (cached in out/closedloop/)."""
+    path = out / "closedloop" / scenario / f"{predictor}.json"
+    if path.is_file():
+        cached = json.loads(path.read_text())
+        if cached["seeds"] == seeds:
+            return cached
+    spec = prepare_spec(load_scenario(f"stress/{scenario}"))
+    t0 = time.perf_counter()
+    results = run_closed_loop(spec, predictor, seeds, workers=workers, progress=True)
+    episodes = [r["scores"] for r in results]
+    agg = aggregate(episodes)
+    if any("composite_score" in e for e in episodes):
+        from simharness.closedloop import bootstrap_ci
+
+        agg.setdefault("composite_score", bootstrap_ci([e.get("composite_score") for e in episodes]))
+    keep = {k: agg[k] for k in FIGURES if k in agg}
+    row = {"scenario": scenario, "predictor": predictor, "seeds": seeds, "episodes": len(episodes),
+           "wall_s": round(time.perf_counter() - t0, 1), "mean_episode_wall_s": sum(e["wall_s"] for e in episodes)
+           / max(len(episodes), 1), **keep,
+           "per_episode": [{k: e.get(k) for k in ("seed", "collided", "at_fault_collided", "composite_score",
+                                                  "online_ade", "progress_m")} for e in episodes]}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(row, indent=1, default=float) + "\n")
+    return row
+
+
+def open_loop(scenario: str, predictors: list[str], seeds: list[int], workers: int, out: Path) -> dict[str, dict]:
+    """Open-loop ADE/FDE of each forecasting predictor on data generated from the scenario (cached)."""
+    from simharness.evaluation import evaluate
+    from simharness.generation import generate
+    from simharness.predictors import load_predictor
+
+    data = out / "data" / scenario
+    generate(load_scenario(f"stress/{scenario}"), seeds, data, workers=workers, progress=False)
+    res = {}
+    for name in predictors:
+        path = out / "openloop" / scenario / f"{name}.json"
+        if not path.is_file():
+            m = evaluate(data, load_predictor(name), split="all", progress=False, name=name)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_text(json.dumps({k: m[k] for k in ("ade", "fde", "ade_rmse", "fde_rmse", "samples")},
+                                       default=float) + "\n")
+        res[name] = json.loads(path.read_text())
+    return res
+
+
+def fmt(ci: dict | None) -> str:
+    if not ci or not ci.get("n"):
+        return "n/a"
+    return f"{ci['mean']:.2f} [{ci['lo']:.2f}, {ci['hi']:.2f}]"
+
+
+def discriminates(rows: dict[str, dict]) -> str:
+    """The stress suite's criterion on the at-fault rate: oracle <= 0.02, static >= 0.30, const-vel between."""
+    need = ("oracle", "static", "const-vel")
+    if not all(k in rows for k in need):
+        return "n/a"
+    o, s, c = (rows[k]["at_fault_collision_rate"]["mean"] for k in need)
+    ok = o <= 0.02 and s >= 0.30 and o < c < s
+    return f"{'yes' if ok else 'NO'} (oracle {o:.2f}, const-vel {c:.2f}, static {s:.2f})"
+
+
+def markdown(table: dict[str, dict[str, dict]], openloop: dict[str, dict[str, dict]], seeds: list[int]) -> str:
+    """The suite as Markdown: per scenario the closed-loop figures, then the leaderboard with open-loop ranks."""
+    score = "composite_score" if any("composite_score" in r for rows in table.values() for r in rows.values()) \
+        else None
+    lines = [f"Closed loop, seeds {seeds[0]}-{seeds[-1]} ({len(seeds)} per cell), mean [95% bootstrap CI].", "",
+             "| scenario | predictor | at-fault collision rate | collision rate | composite score | near misses / min "
+             "| progress (m) | online ADE (m) | s / episode |", "|" + "---|" * 9]
+    for sc, rows in table.items():
+        for name, r in rows.items():
+            lines.append(f"| {sc} | {name} | {fmt(r.get('at_fault_collision_rate'))} | {fmt(r.get('collision_rate'))} "
+                         f"| {fmt(r.get('composite_score'))} | {fmt(r.get('near_misses_per_min'))} "
+                         f"| {fmt(r.get('progress_m'))} | {fmt(r.get('online_ade'))} "
+                         f"| {r['mean_episode_wall_s']:.1f} |")
+    lines += ["", "| scenario | discriminating (at-fault rate: oracle <= 0.02, static >= 0.30, const-vel between) |",
+              "|---|---|"]
+    lines += [f"| {sc} | {discriminates(rows)} |" for sc, rows in table.items()]
+    if openloop:
+        key = score or "at_fault_collision_rate"
+        lines += ["", f"Open-loop ADE / FDE (m) on data generated from each scenario beside the closed-loop "
+                  f"{'composite score (higher is better)' if score else 'at-fault rate (lower is better)'}; "
+                  "ranks among the forecasting predictors.", "",
+                  "| scenario | predictor | open-loop ADE / FDE | open-loop rank | closed-loop "
+                  f"{'score' if score else 'at-fault rate'} | closed-loop rank |", "|---|---|---|---|---|---|"]
+        for sc, ol in openloop.items():
+            names = [n for n in ol if n in table[sc]]
+            ol_rank = {n: i + 1 for i, n in enumerate(sorted(names, key=lambda n: ol[n]["ade"]))}
+            sign = -1 if score else 1
+            cl_rank = {n: i + 1 for i, n in enumerate(sorted(names, key=lambda n: sign * table[sc][n][key]["mean"]))}
+            for n in names:
+                lines.append(f"| {sc} | {n} | {ol[n]['ade']:.2f} / {ol[n]['fde']:.2f} | {ol_rank[n]} "
+                             f"| {fmt(table[sc][n][key])} | {cl_rank[n]} |")
+    return "\n".join(lines) + "\n"
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--scenarios", default=",".join(STRESS), help="stress scenario names (default: all)")
+    p.add_argument("--predictors", default="oracle,static,const-vel,traphic")
+    p.add_argument("--seeds", type=parse_seeds, default=parse_seeds("0-49"))
+    p.add_argument("--open-loop-seeds", type=parse_seeds, default=None, help="also score open loop on these seeds")
+    p.add_argument("--open-loop-predictors", default="traphic,cs-lstm,const-vel")
+    p.add_argument("--workers", type=int, default=2)
+    p.add_argument("--out", type=Path, default=Path("runs/bench_stress"))
+    a = p.parse_args()
+    scenarios = [s.strip() for s in a.scenarios.split(",") if s.strip()]
+    predictors = [s.strip() for s in a.predictors.split(",") if s.strip()]
+    table: dict[str, dict[str, dict]] = {}
+    for sc in scenarios:
+        table[sc] = {name: closed_loop(sc, name, a.seeds, a.workers, a.out) for name in predictors}
+    print(f"Closed loop, seeds {a.seeds[0]}-{a.seeds[-1]} ({len(a.seeds)}): mean [95% bootstrap CI]")
+    print(f"{'scenario':10} {'predictor':10} {'at-fault rate':>20} {'collision rate':>20} {'composite':>20} "
+          f"{'near miss/min':>20} {'online ADE':>20} {'s/episode':>9}")
+    for sc, rows in table.items():
+        for name, r in rows.items():
+            print(f"{sc:10} {name:10} {fmt(r.get('at_fault_collision_rate')):>20} {fmt(r.get('collision_rate')):>20} "
+                  f"{fmt(r.get('composite_score')):>20} {fmt(r.get('near_misses_per_min')):>20} "
+                  f"{fmt(r.get('online_ade')):>20} {r['mean_episode_wall_s']:9.1f}")
+        print(f"{sc:10} discriminating: {discriminates(rows)}")
+    openloop: dict[str, dict[str, dict]] = {}
+    if a.open_loop_seeds:
+        names = [s.strip() for s in a.open_loop_predictors.split(",") if s.strip()]
+        print(f"Open loop (generated seeds {a.open_loop_seeds[0]}-{a.open_loop_seeds[-1]}, split all): ADE / FDE (m)")
+        for sc in scenarios:
+            openloop[sc] = open_loop(sc, names, a.open_loop_seeds, a.workers, a.out)
+            print(f"{sc:10} " + "  ".join(f"{n} {m['ade']:.2f}/{m['fde']:.2f}" for n, m in openloop[sc].items()))
+    (a.out / "stress.md").write_text(markdown(table, openloop, a.seeds))
+    print(f"wrote {a.out / 'stress.md'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

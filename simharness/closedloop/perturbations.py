@@ -1,0 +1,165 @@
+"""Forecast perturbations: degrade any predictor's forecasts in controlled ways (`PerturbedPredictor`).
+
+A `Perturbation` names how much of each error to inject; `perturb` applies it to one forecast (pure,
+seeded by the Generator it is given, vectorised over agents and steps); `PerturbedPredictor` wraps a
+Predictor and applies it to every forecast of an episode (it keeps only its Generator and, for
+latency, the forecasts it issued). Every error is measured where it lands: the loop's online ADE of
+the perturbed forecasts is what `simharness sensitivity` plots the closed-loop figures against.
+
+The errors, each a no-op at its default:
+- noise (m): a position error per agent and forecast, N(0, noise^2) per axis at the last forecast step,
+  growing linearly from 0 with the lead time (a velocity-like error: forecasts drift off smoothly);
+- latency (frames): the planner gets the forecast made `latency` frames ago, re-timed to now (agents
+  that appeared since are missing from it);
+- speed (x): each agent's displacement from its position now scaled (< 1 under-, > 1 over-estimated speed);
+- heading (degrees): each displacement rotated about the agent's position now (+ counter-clockwise);
+- drop (agent type): agents of that type left out of the forecast altogether;
+- sigma (x): the forecast's position sigmas scaled (forecasts without sigmas are left as they are).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+import numpy as np
+
+from simharness.errors import UserError
+from simharness.scene import AgentType, Forecast, Predictor, Scene
+
+KEYS = ("noise", "latency", "speed", "heading", "drop", "sigma")
+
+
+@dataclasses.dataclass(frozen=True)
+class Perturbation:
+    """How much of each error to inject (see the module docstring); the defaults inject none."""
+
+    noise: float = 0.0  # m: per-axis std of the position error at the last forecast step
+    latency: int = 0  # frames the forecast is late
+    speed: float = 1.0  # x: displacement scale
+    heading: float = 0.0  # degrees: displacement rotation
+    drop: str = ""  # agent type label left out of forecasts ("" none)
+    sigma: float = 1.0  # x: sigma scale
+
+    @property
+    def is_identity(self) -> bool:
+        return self == Perturbation()
+
+    def label(self) -> str:
+        """"noise=1" style: only the keys that differ from the defaults ("none" when none do)."""
+        parts = [f"{k}={getattr(self, k):g}" if not isinstance(getattr(self, k), str) else f"{k}={getattr(self, k)}"
+                 for k in KEYS if getattr(self, k) != getattr(Perturbation(), k)]
+        return ",".join(parts) or "none"
+
+    @classmethod
+    def from_items(cls, items: dict[str, Any], where: str = "--perturb") -> Perturbation:
+        """Validated from {key: value} (values as numbers or strings); UserError naming the key."""
+        out: dict[str, Any] = {}
+        for k, v in items.items():
+            if k not in KEYS:
+                raise UserError(f"{where}: unknown perturbation {k!r}; expected one of {', '.join(KEYS)}")
+            if k == "drop":
+                try:
+                    out[k] = AgentType.parse(str(v)).label if str(v) else ""
+                except UserError:
+                    raise UserError(f"{where}: drop={v}: unknown agent type") from None
+                continue
+            try:
+                x = float(v)
+            except ValueError:
+                raise UserError(f"{where}: {k}={v}: expected a number") from None
+            if k == "latency":
+                if x < 0 or x != int(x):
+                    raise UserError(f"{where}: latency={v}: expected a whole number of frames >= 0")
+                out[k] = int(x)
+            elif k in ("noise", "speed", "sigma") and (x < 0 or not math.isfinite(x)):
+                raise UserError(f"{where}: {k}={v}: expected a number >= 0")
+            else:
+                out[k] = x
+        return cls(**out)
+
+
+def parse_grid(texts: list[str]) -> list[Perturbation]:
+    """`--perturb` values ("noise=0,0.5,1", "latency=0,2") -> the grid (cartesian product), in order."""
+    axes: list[tuple[str, list[str]]] = []
+    for text in texts:
+        key, sep, values = text.partition("=")
+        if not sep or not values.strip():
+            raise UserError(f"--perturb {text!r}: expected KEY=V1,V2,... (keys: {', '.join(KEYS)})")
+        axes.append((key.strip(), [v.strip() for v in values.split(",") if v.strip()]))
+    grid: list[dict[str, str]] = [{}]
+    for key, values in axes:
+        grid = [{**g, key: v} for g in grid for v in values]
+    return [Perturbation.from_items(g, f"--perturb {g}") for g in grid]
+
+
+def perturb(forecast: Forecast, history: Scene, targets: np.ndarray, p: Perturbation,
+            rng: np.random.Generator) -> Forecast:
+    """One forecast degraded by `p` (all but latency, which needs the past: see `PerturbedPredictor`).
+
+    forecast: M agents x F steps; history/targets: what it was made from (targets (M,) rows of history,
+    giving each agent's position now and its type). Returns a new Forecast (M' <= M agents).
+    """
+    mean = forecast.mean.astype(np.float64)  # (M, F, 2)
+    now = history.xy[targets, -1].astype(np.float64)[:, None]  # (M, 1, 2)
+    disp = (mean - now) * p.speed
+    if p.heading:
+        c, s = math.cos(math.radians(p.heading)), math.sin(math.radians(p.heading))
+        disp = np.stack([c * disp[..., 0] - s * disp[..., 1], s * disp[..., 0] + c * disp[..., 1]], -1)
+    mean = now + disp
+    m, f = mean.shape[:2]
+    if p.noise:
+        grow = (np.arange(f) + 1.0) / f  # (F,): 0 now .. 1 at the last step
+        mean = mean + rng.normal(0.0, p.noise, (m, 1, 2)) * grow[None, :, None]
+    sigma_rho = forecast.sigma_rho
+    if sigma_rho is not None and p.sigma != 1.0:
+        sigma_rho = np.concatenate([sigma_rho[..., :2] * p.sigma, sigma_rho[..., 2:]], -1)
+    keep = np.ones(m, bool)
+    if p.drop:
+        keep = history.agent_type[targets] != int(AgentType.parse(p.drop))
+    return Forecast(agent_id=forecast.agent_id[keep], mean=mean[keep].astype(np.float32), dt=forecast.dt,
+                    sigma_rho=None if sigma_rho is None else sigma_rho[keep].astype(np.float32))
+
+
+def retime(forecast: Forecast, late: int, horizon: int) -> Forecast:
+    """A forecast made `late` frames ago as seen now: its first `late` steps dropped, the end extended
+    at its last velocity back to `horizon` steps. mean (M, F, 2) -> (M, horizon, 2)."""
+    mean = forecast.mean[:, late:]
+    if mean.shape[1] == 0:  # older than its horizon: hold the last position
+        mean = forecast.mean[:, -1:]
+    last = forecast.mean[:, -1] - (forecast.mean[:, -2] if forecast.horizon > 1 else forecast.mean[:, -1])
+    extra = horizon - mean.shape[1]
+    if extra > 0:
+        mean = np.concatenate([mean, mean[:, -1:] + last[:, None] * (np.arange(extra) + 1.0)[None, :, None]], 1)
+    sigma = forecast.sigma_rho
+    if sigma is not None:
+        sigma = sigma[:, min(late, forecast.horizon - 1):]
+        sigma = np.concatenate([sigma, np.repeat(sigma[:, -1:], max(horizon - sigma.shape[1], 0), 1)], 1)[:, :horizon]
+    return Forecast(agent_id=forecast.agent_id, mean=mean[:, :horizon].astype(np.float32), dt=forecast.dt,
+                    sigma_rho=sigma)
+
+
+class PerturbedPredictor:
+    """Any Predictor with its forecasts degraded by a `Perturbation` (see the module docstring).
+
+    inner: the predictor; p: the errors; seed: seeds the noise (same seed, same calls -> same forecasts).
+    """
+
+    def __init__(self, inner: Predictor, p: Perturbation, seed: int = 0) -> None:
+        self.inner = inner
+        self.p = p
+        self.rng = np.random.default_rng([int(seed), 0x5EED])
+        self._past: list[tuple[int, Forecast]] = []  # (frame made, forecast) while latency needs them
+
+    def predict(self, history: Scene, targets: np.ndarray, horizon: int) -> Forecast:
+        """As the inner predictor's, degraded: (M' <= M, horizon, 2)."""
+        targets = np.asarray(targets, int)
+        out = perturb(self.inner.predict(history, targets, horizon), history, targets, self.p, self.rng)
+        if self.p.latency <= 0:
+            return out
+        now = history.frame0 + history.num_frames - 1
+        self._past = [(k, f) for k, f in self._past if k >= now - self.p.latency - horizon] + [(now, out)]
+        due = [(k, f) for k, f in self._past if k <= now - self.p.latency]
+        made, stale = due[-1] if due else self._past[0]  # the latest made long enough ago (or the oldest kept)
+        return retime(stale, now - made, horizon)
