@@ -33,10 +33,14 @@ from predictor.models.rnn_ed import positions
 
 @dataclasses.dataclass(frozen=True)
 class SocialGANConfig(ModelConfig):
-    """Sizes (smaller than the original's 1024-wide MLPs, to train on a CPU), noise, loss settings."""
+    """Sizes of the authors' released models (embedding 16, encoder and decoder 32, MLP 64; the paper's code
+    defaults to 1024-wide MLPs), noise, loss settings. Checkpoints record their sizes, so older, wider ones load."""
 
-    mlp: int = 256
-    bottleneck: int = 256
+    embed: int = 16
+    encoder: int = 32
+    decoder: int = 32
+    mlp: int = 64
+    bottleneck: int = 32
     noise_dim: int = 8
     variety_k: int = 20
     adv_weight: float = 1.0

@@ -23,6 +23,7 @@ from torch.nn import functional as fn
 
 from predictor.models.config import ModelConfig
 from predictor.models.gaussian import output, zero_means
+from predictor.models.lstm import constant_input_lstm
 from predictor.models.rnn_ed import positions
 
 
@@ -114,7 +115,7 @@ class SocialLSTM(nn.Module):
         agent, src, slot, offsets, widths = self.pair_layout(metres, present)
         offsets, widths = offsets.tolist(), widths.tolist()
         agent, src = compact.index_select(0, agent), compact.index_select(0, src)
-        w = self.social.weight.view(cfg.social_embed, g, cfg.encoder).permute(1, 2, 0)  # (g, encoder, social)
+        w = self.social.weight.view(cfg.social_embed, g, cfg.encoder).permute(1, 2, 0).contiguous()  # (g, enc, soc)
         bias = self.social.bias.expand(n, -1)
         pres = present.reshape(b * a, steps).index_select(0, rows)
         emb = fn.relu(self.embed(metres.reshape(b * a, steps, 2).index_select(0, rows) / cfg.pos_scale))
@@ -136,5 +137,5 @@ class SocialLSTM(nn.Module):
     def forward(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
         group = torch.cat([batch["hist"][:, None], batch["nbr"]], 1)  # (B, 1 + K, H, D)
         h = self.encode(group)[:, 0]
-        y, _ = self.decoder(h[:, None].expand(-1, self.cfg.future, -1))
+        y = constant_input_lstm(self.decoder, h, self.cfg.future)  # the same input at every step
         return output(self.out(y), self.cfg, batch["hist"])
