@@ -4,6 +4,7 @@
     python bench/predictor.py --full     # more data and the paper's 16 epochs
     python bench/predictor.py --data DIR # reuse a data set generated from sumo_arterial_dense
     python bench/predictor.py --data DIR --speed --threads 1,2   # only throughput and inference time
+    python bench/predictor.py --data DIR --methods               # training samples/s of every method
 
 Prints figures measured in this run: samples/s of training (batch building from the cached index +
 forward + backward + Adam step) and ms per batched forecast of every agent of a ~100-agent frame (the
@@ -41,6 +42,7 @@ from simharness.io.parquet import Dataset  # noqa: E402
 from simharness.report import plot_rmse_curve  # noqa: E402
 
 VARIANTS = ("traphic-b", "traphic-he", "traphic-ho", "traphic")
+METHODS = ("rnn-ed", "social-lstm", "social-gan", "cs-lstm", *VARIANTS)
 
 
 def _load() -> str:
@@ -48,14 +50,16 @@ def _load() -> str:
     return f"load {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores"
 
 
-def throughput(data: Path, threads: int, batches: int = 40, batch_size: int = 128) -> tuple[float, float]:
-    """Training samples per second, batch building from the cached index + forward + backward + Adam step, after 5
-    warm-up batches -> (wall-clock, CPU-time) samples/s. CPU time excludes waiting for the cores, so it is the
-    rate of an otherwise idle machine (for one thread; with more it adds the threads' times up)."""
+def throughput(data: Path, threads: int, batches: int = 40, batch_size: int = 128, model: str = "traphic",
+               residual: bool = False) -> tuple[float, float]:
+    """Training samples per second of `model`, batch building from the cached index + forward + backward + Adam
+    step (Social-GAN: its discriminator and generator steps), after 5 warm-up batches -> (wall-clock, CPU-time)
+    samples/s. CPU time excludes waiting for the cores, so it is the rate of an otherwise idle machine (for one
+    thread; with more it adds the threads' times up)."""
     torch.set_num_threads(threads)
     store = load_windows(data, WindowConfig(), progress=False)
     torch.manual_seed(0)
-    net = build_model("traphic", {"history": store.H, "future": store.F})
+    net = build_model(model, {"history": store.H, "future": store.F, **({"residual": True} if residual else {})})
     opt = torch.optim.Adam(net.parameters(), lr=1e-3, fused=True)
     rng = np.random.default_rng(0)
     t0 = c0 = 0.0
@@ -63,6 +67,9 @@ def throughput(data: Path, threads: int, batches: int = 40, batch_size: int = 12
         if i == 5:
             t0, c0 = time.perf_counter(), time.process_time()
         b = store.batch(rng.integers(0, len(store), batch_size)).tensors()
+        if hasattr(net, "training_step"):
+            net.training_step(b, "mse", opt)
+            continue
         loss = mse(net(b), b["fut"], b["fut_valid"])
         opt.zero_grad()
         loss.backward()
@@ -116,6 +123,8 @@ def main() -> int:
     ap.add_argument("--epochs", type=int, default=None, help="override the epochs per model")
     ap.add_argument("--speed", action="store_true", help="only the throughput and inference figures")
     ap.add_argument("--threads", default="1", help="thread counts to time, comma-separated (1,2 compares)")
+    ap.add_argument("--methods", action="store_true",
+                    help="only the training samples/s of every method (the paper's baselines and TraPHic's variants)")
     args = ap.parse_args()
     torch.set_num_threads(int(os.environ["OMP_NUM_THREADS"]))
     seeds, duration, samples, epochs, warmup = ("0-5", 40, 3000, 3, 1) if not args.full else ("0-19", 60, None, 16, 2)
@@ -127,6 +136,12 @@ def main() -> int:
     t = time.perf_counter()
     load_windows(data, WindowConfig())
     print(f"windows index built or loaded in {time.perf_counter() - t:.1f} s")
+    if args.methods:
+        for name in METHODS:
+            wall, cpu = throughput(data, 1, batches=20, model=name)
+            print(f"{name}: {wall:.0f} training samples/s wall-clock, {cpu:.0f} of CPU time (1 thread, batch 128, "
+                  f"data loading included; {_load()}; target >= 1000)", flush=True)
+        return 0
     timing = speed(data, ModelPredictor.shipped("traphic"), [int(k) for k in args.threads.split(",")])
     if args.speed:
         return 0

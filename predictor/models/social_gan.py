@@ -27,15 +27,20 @@ from torch import nn
 from torch.nn import functional as fn
 
 from predictor.models.config import ModelConfig
+from predictor.models.gaussian import cv_step, zero_means
 from predictor.models.rnn_ed import positions
 
 
 @dataclasses.dataclass(frozen=True)
 class SocialGANConfig(ModelConfig):
-    """Sizes (smaller than the original's 1024-wide MLPs, to train on a CPU), noise, loss settings."""
+    """Sizes of the authors' released models (embedding 16, encoder and decoder 32, MLP 64; the paper's code
+    defaults to 1024-wide MLPs), noise, loss settings. Checkpoints record their sizes, so older, wider ones load."""
 
-    mlp: int = 256
-    bottleneck: int = 256
+    embed: int = 16
+    encoder: int = 32
+    decoder: int = 32
+    mlp: int = 64
+    bottleneck: int = 32
     noise_dim: int = 8
     variety_k: int = 20
     adv_weight: float = 1.0
@@ -96,6 +101,8 @@ class SocialGAN(nn.Module):
         self.context = _mlp(cfg.encoder + cfg.bottleneck, cfg.mlp, cfg.decoder - cfg.noise_dim)
         self.cell = nn.LSTMCell(cfg.embed, cfg.decoder)
         self.to_step = nn.Linear(cfg.decoder, 2)
+        if cfg.residual:
+            zero_means(self.to_step)
         self.discriminator = Discriminator(cfg)
         self._d_opt: torch.optim.Optimizer | None = None
 
@@ -112,29 +119,37 @@ class SocialGAN(nn.Module):
         nbr, hist = batch["nbr"], batch["hist"]
         b, k = nbr.shape[:2]
         h_t = self._encode(hist)
-        h_n = self._encode(nbr.reshape(b * k, *nbr.shape[2:])).view(b, k, -1)
         end, present = positions(nbr[:, :, -1], self.cfg.pos_scale)  # neighbours at now, target frame (target at 0)
-        feats = self.pool(torch.cat([fn.relu(self.pool_embed(end)), h_n], -1))  # (B, K, bottleneck)
-        have = present & (batch["nbr_cell"] >= 0)
-        pooled = feats.masked_fill(~have[..., None], float("-inf")).max(1).values
-        pooled = torch.where(have.any(1, keepdim=True), pooled, torch.zeros_like(pooled))  # nobody around: zeros
+        have = (present & (batch["nbr_cell"] >= 0)).reshape(-1)
+        rows = torch.nonzero(have).squeeze(1)
+        # Only the neighbours that are pooled are encoded and embedded (the others are masked out below).
+        h_n = self._encode(nbr.reshape(b * k, *nbr.shape[2:]).index_select(0, rows))
+        feats = self.pool(torch.cat([fn.relu(self.pool_embed(end.reshape(b * k, 2).index_select(0, rows))), h_n], -1))
+        # Max over each target's neighbours, all at once: scatter into (B * K) rows of -inf, then max over K.
+        full = feats.new_full((b * k, feats.shape[1]), float("-inf")).index_copy(0, rows, feats)
+        pooled = full.view(b, k, -1).max(1).values
+        pooled = torch.where(have.view(b, k).any(1, keepdim=True), pooled, torch.zeros_like(pooled))  # nobody: zeros
         return self.context(torch.cat([h_t, pooled], -1))
 
-    def _decode(self, ctx: torch.Tensor, hist: torch.Tensor, k: int,
-                generator: torch.Generator | None = None) -> torch.Tensor:
-        """ctx (B, C), hist (B, H, D) -> k sampled futures (B, k, F, 2) in metres, target frame."""
+    def _decode(self, ctx: torch.Tensor, hist: torch.Tensor, k: int, generator: torch.Generator | None = None,
+                z: torch.Tensor | None = None) -> torch.Tensor:
+        """ctx (B, C), hist (B, H, D) -> k sampled futures (B, k, F, 2) in metres, target frame; z (B, k, noise)
+        the noise, drawn here if None."""
         cfg = self.cfg
         b = ctx.shape[0]
-        z = torch.randn(b, k, cfg.noise_dim, generator=generator, dtype=ctx.dtype)
+        if z is None:
+            z = torch.randn(b, k, cfg.noise_dim, generator=generator, dtype=ctx.dtype)
         h = torch.cat([ctx[:, None].expand(-1, k, -1), z], -1).reshape(b * k, -1)
         c = torch.zeros_like(h)
         xy, _ = positions(hist, 1.0)
         pos = xy[:, -1].repeat_interleave(k, 0)
         step = (xy[:, -1] - xy[:, -2]).repeat_interleave(k, 0)
+        cv = cv_step(hist).repeat_interleave(k, 0) if cfg.residual else None
         out = []
         for _ in range(cfg.future):  # autoregressive: each step's input is the previous displacement
             h, c = self.cell(fn.relu(self.embed(step / cfg.disp_scale)), (h, c))
-            step = self.to_step(h) * cfg.disp_scale
+            # Residual: constant velocity's step plus a correction (zero at initialisation).
+            step = self.to_step(h) * cfg.disp_scale if cv is None else cv + self.to_step(h) * cfg.residual_scale
             pos = pos + step
             out.append(pos)
         return torch.stack(out, 1).view(b, k, cfg.future, 2)
@@ -163,8 +178,9 @@ class SocialGAN(nn.Module):
         b = fut.shape[0]
         # Generated futures are scored only where the real one is known: fill unknown steps with the truth's zeros.
         keep = mask[..., None].to(fut.dtype)
+        ctx = self._context(batch)  # once: the discriminator's fake and the generator's samples share it
         with torch.no_grad():
-            fake = self._decode(self._context(batch), batch["hist"], 1)[:, 0] * keep
+            fake = self._decode(ctx.detach(), batch["hist"], 1)[:, 0] * keep
         real_label, fake_label = torch.empty(b).uniform_(0.7, 1.2), torch.empty(b).uniform_(0.0, 0.3)
         d_loss = (fn.binary_cross_entropy_with_logits(disc(torch.cat([hist_xy, fut], 1)), real_label)
                   + fn.binary_cross_entropy_with_logits(disc(torch.cat([hist_xy, fake], 1)), fake_label))
@@ -172,10 +188,17 @@ class SocialGAN(nn.Module):
         d_loss.backward()
         self._d_opt.step()
 
-        samples = self._decode(self._context(batch), batch["hist"], self.cfg.variety_k)
-        adv = fn.binary_cross_entropy_with_logits(disc(torch.cat([hist_xy, samples[:, 0] * keep], 1)),
+        # The variety loss's gradient flows through each target's best sample only: all K are decoded without
+        # gradients to find it, then the best and the first (the adversarial loss's) again with them.
+        z = torch.randn(b, self.cfg.variety_k, self.cfg.noise_dim, dtype=ctx.dtype)
+        with torch.no_grad():
+            samples = self._decode(ctx.detach(), batch["hist"], self.cfg.variety_k, z=z)
+            m = mask[:, None].to(samples.dtype)
+            best = ((((samples - fut[:, None]) ** 2).sum(-1) * m).sum(-1) / m.sum(-1).clamp_min(1)).argmin(1)
+        chosen = self._decode(ctx, batch["hist"], 2, z=torch.stack([z[torch.arange(b), best], z[:, 0]], 1))
+        adv = fn.binary_cross_entropy_with_logits(disc(torch.cat([hist_xy, chosen[:, 1] * keep], 1)),
                                                   torch.empty(b).uniform_(0.7, 1.2))
-        g_loss = variety_loss(samples, fut, mask) + self.cfg.adv_weight * adv
+        g_loss = variety_loss(chosen[:, :1], fut, mask) + self.cfg.adv_weight * adv
         opt.zero_grad()
         g_loss.backward()
         for p in disc.parameters():  # the generator's step must not move the discriminator

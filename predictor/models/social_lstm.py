@@ -7,8 +7,10 @@ so interactions propagate step by step through the whole group. The target's las
 drives an LSTM decoder with a bivariate Gaussian output per future step, the encoder-decoder form in
 which Social-LSTM is compared on vehicle data (Deo and Trivedi, 2018).
 
-Pooling is one scatter over all (agent, other agent) pairs of the batch at once: each pair adds the
-other agent's hidden state to its cell of the agent's grid.
+Pooling works on all (agent, other agent) pairs of the batch at once (no per-agent loops): the social
+layer's weight is split per grid cell and applied to each pair's hidden state (`encode`), the same function
+as the layer over the dense grid of summed hidden states, without building that mostly empty grid.
+Only agents present at some history step are run.
 """
 
 from __future__ import annotations
@@ -20,7 +22,8 @@ from torch import nn
 from torch.nn import functional as fn
 
 from predictor.models.config import ModelConfig
-from predictor.models.gaussian import gaussian_head
+from predictor.models.gaussian import output, zero_means
+from predictor.models.lstm import constant_input_lstm
 from predictor.models.rnn_ed import positions
 
 
@@ -65,29 +68,74 @@ class SocialLSTM(nn.Module):
         self.cell = nn.LSTMCell(cfg.embed + cfg.social_embed, cfg.encoder)
         self.decoder = nn.LSTM(cfg.encoder, cfg.decoder, batch_first=True)
         self.out = nn.Linear(cfg.decoder, 5)
+        if cfg.residual:
+            zero_means(self.out)
+
+    def pair_layout(self, metres: torch.Tensor, present: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """The pairs of every history step, grouped for `encode`'s per-cell matmuls.
+
+        metres (B, A, H, 2), present (B, A, H) -> (agent, src, slot (P,) int64, offsets (H + 1,), widths (H,)):
+        pairs sorted by (step, cell); those of step t are offsets[t]:offsets[t + 1]; agent / src index the
+        B * A agents; slot = cell * widths[t] + rank of the pair within its (step, cell), widths[t] the most
+        pairs any cell holds at step t.
+        """
+        cfg = self.cfg
+        b, a, steps = present.shape
+        g = cfg.grid[0] * cfg.grid[1]
+        slot, src = social_pairs(metres.transpose(1, 2).reshape(b * steps, a, 2),
+                                 present.transpose(1, 2).reshape(b * steps, a), cfg.grid, cfg.grid_extent)
+        bt, cell = slot // (a * g), slot % g  # bt = b * H + t
+        agent = (bt // steps) * a + (slot // g) % a
+        src = (src // (a * steps)) * a + src % a
+        key = (bt % steps) * g + cell
+        order = torch.argsort(key, stable=True)
+        key, agent, src, cell = key[order], agent[order], src[order], cell[order]
+        counts = torch.bincount(key, minlength=steps * g)
+        rank = torch.arange(key.numel()) - (torch.cumsum(counts, 0) - counts).index_select(0, key)
+        widths = counts.view(steps, g).amax(1).clamp_min(1)
+        offsets = torch.cat([torch.zeros(1, dtype=torch.long), torch.cumsum(counts.view(steps, g).sum(1), 0)])
+        return agent, src, cell * widths.index_select(0, key // g) + rank, offsets, widths
 
     def encode(self, omega: torch.Tensor) -> torch.Tensor:
-        """omega (B, A, H, D) of a group (row 0 the target) -> (B, A, encoder) last hidden states."""
+        """omega (B, A, H, D) of a group (row 0 the target) -> (B, A, encoder) last hidden states (zero for agents
+        never present).
+
+        The social layer over each agent's grid of summed hidden states is computed from the pairs instead: the
+        grid is mostly empty, so the layer's weight is split per cell and applied to the pairs of each cell (one
+        batched matmul over cells, pairs padded to the fullest cell), the same function for several times less
+        work. Only agents present at some step are run: the others never update and never pool.
+        """
         cfg = self.cfg
         b, a, steps = omega.shape[:3]
         g = cfg.grid[0] * cfg.grid[1]
         metres, present = positions(omega, 1.0)
-        h = omega.new_zeros(b * a, cfg.encoder)
-        c = omega.new_zeros(b * a, cfg.encoder)
+        rows = torch.nonzero(present.any(2).reshape(-1)).squeeze(1)
+        n = rows.numel()
+        compact = torch.full((b * a,), -1, dtype=torch.long).index_copy_(0, rows, torch.arange(n))
+        agent, src, slot, offsets, widths = self.pair_layout(metres, present)
+        offsets, widths = offsets.tolist(), widths.tolist()
+        agent, src = compact.index_select(0, agent), compact.index_select(0, src)
+        w = self.social.weight.view(cfg.social_embed, g, cfg.encoder).permute(1, 2, 0).contiguous()  # (g, enc, soc)
+        bias = self.social.bias.expand(n, -1)
+        pres = present.reshape(b * a, steps).index_select(0, rows)
+        emb = fn.relu(self.embed(metres.reshape(b * a, steps, 2).index_select(0, rows) / cfg.pos_scale))
+        h = omega.new_zeros(n, cfg.encoder)
+        c = omega.new_zeros(n, cfg.encoder)
         for t in range(steps):  # the recurrence itself is sequential; all agents of the batch at once
-            pres = present[:, :, t]
-            slot, src = social_pairs(metres[:, :, t], pres, cfg.grid, cfg.grid_extent)
-            # Social tensor: hidden states summed per cell of each agent's grid (one scatter for the batch).
-            pooled = h.new_zeros(b * a * g, cfg.encoder).index_add(0, slot, h.index_select(0, src))
-            x = torch.cat([fn.relu(self.embed(metres[:, :, t] / cfg.pos_scale)).reshape(b * a, -1),
-                           fn.relu(self.social(pooled.view(b * a, g * cfg.encoder)))], -1)
-            h_new, c_new = self.cell(x, (h, c))
-            keep = pres.reshape(-1, 1)  # absent agents keep their state
+            lo, hi, width = offsets[t], offsets[t + 1], widths[t]
+            soc = bias
+            if hi > lo:
+                sl = slot[lo:hi]
+                x = h.new_zeros(g * width, cfg.encoder).index_copy(0, sl, h.index_select(0, src[lo:hi]))
+                y = torch.bmm(x.view(g, width, -1), w).view(g * width, -1).index_select(0, sl)
+                soc = bias.index_add(0, agent[lo:hi], y)
+            h_new, c_new = self.cell(torch.cat([emb[:, t], fn.relu(soc)], -1), (h, c))
+            keep = pres[:, t, None]  # absent agents keep their state
             h, c = torch.where(keep, h_new, h), torch.where(keep, c_new, c)
-        return h.view(b, a, -1)
+        return omega.new_zeros(b * a, cfg.encoder).index_copy(0, rows, h).view(b, a, -1)
 
     def forward(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
         group = torch.cat([batch["hist"][:, None], batch["nbr"]], 1)  # (B, 1 + K, H, D)
         h = self.encode(group)[:, 0]
-        y, _ = self.decoder(h[:, None].expand(-1, self.cfg.future, -1))
-        return gaussian_head(self.out(y), self.cfg.pos_scale)
+        y = constant_input_lstm(self.decoder, h, self.cfg.future)  # the same input at every step
+        return output(self.out(y), self.cfg, batch["hist"])
