@@ -134,6 +134,13 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("src", type=Path, nargs="+", help="source file(s) or folder")
     i.add_argument("--out", type=Path, required=True)
     i.add_argument("--allow-pickle", action="store_true", help="allow reading pickled .npy files you trust")
+    i.add_argument("--type-default", default=None, metavar="TYPE",
+                   help="traf: class of ids that are bare numbers (no class in the file), e.g. car; default other")
+    i.add_argument("--pixel-scale", type=float, default=None, metavar="M_PER_PX",
+                   help="traf: metres per pixel for videos without cars to estimate it from, e.g. 0.03")
+    i.add_argument("--fps", type=float, default=None, help="traf: video frame rate (default 20, the data set's)")
+    i.add_argument("--image-size", default=None, metavar="WxH",
+                   help="traf: video frame size in pixels (default: from the boxes' extent)")
 
     x = cmd("export", "simharness.io.exporters:export_command", "write a data set in another tool's layout")
     x.add_argument("format", help="tracknpred")

@@ -13,6 +13,7 @@ from predictor.split import split_scenes
 from simharness.cli import main
 from simharness.errors import UserError
 from simharness.io import importers as im
+from simharness.io.parquet import Dataset
 from simharness.scene import AgentType
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
@@ -98,3 +99,50 @@ def test_traphic_on_traf_pixels(datasets):
     # Agents sit 400-800 px from the image origin: a forecast left in the model's metre-like units would be
     # off by hundreds of px; a barely trained one is off by about 100 px (constant velocity: 47).
     assert 1.0 < m["ade"] < 200.0 and m["fde"] > m["ade"]
+
+
+# ---------------------------------------------------------------------- every TRAF video usable (issue 14)
+def test_import_traf_options_make_bare_numbered_videos_usable(tmp_path, capsys):
+    """TRAF13 has bare numeric ids (no class column) and is a 1920x1080 video: the import warns in one line,
+    types them with --type-default, estimates a pixel scale from the boxes, and takes the image size from the data."""
+    src = DATA / "traf" / "TRAF13_gt.txt"
+    assert main(["import", "traf", str(src), "--out", str(tmp_path / "plain")]) == 0
+    err = [line for line in capsys.readouterr().err.splitlines() if "warning" in line]
+    assert err == ["simharness: warning: TRAF13_gt.txt: 42 of 42 ids carry no class (bare numbers): typed other; "
+                   "give --type-default TYPE; no cars to estimate a pixel scale from; give --pixel-scale M_PER_PX "
+                   "(or --type-default car) to train or evaluate on it"]
+    plain = Dataset(tmp_path / "plain").scene("TRAF13_gt")
+    assert (plain.agent_type == AgentType.OTHER).all() and "units_per_m" not in plain.meta
+    assert plain.meta["image_size"] == [1920, 1080] and plain.dt == pytest.approx(0.05)
+    # Training on it stops with a line whose fix is a real option of `import traf`.
+    code = main(["train", "--data", str(tmp_path / "plain"), "--test-scenes", "TRAF13", "--out", str(tmp_path / "r")])
+    assert code == 2 and "--pixel-scale M_PER_PX" in capsys.readouterr().err
+
+    assert main(["import", "traf", str(src), "--out", str(tmp_path / "typed"), "--type-default", "car",
+                 "--fps", "10", "--image-size", "2000x1100"]) == 0
+    typed = Dataset(tmp_path / "typed").scene("TRAF13_gt")
+    assert (typed.agent_type == AgentType.CAR).all() and typed.dt == pytest.approx(0.1)
+    assert typed.meta["units_per_m"] == pytest.approx(np.median(typed.length) / 1.7, abs=0.01)
+    assert typed.meta["image_size"] == [2000, 1100] and typed.meta["untyped_ids"] == 42
+
+    # A video with labelled classes but no cars (TRAF15: humans, chairs, desks) takes --pixel-scale.
+    assert main(["import", "traf", str(DATA / "traf" / "TRAF15_gt.txt"), "--out", str(tmp_path / "p"),
+                 "--pixel-scale", "0.02"]) == 0
+    t15 = Dataset(tmp_path / "p").scene("TRAF15_gt")
+    assert t15.meta["units_per_m"] == pytest.approx(50.0) and (t15.agent_type == AgentType.PEDESTRIAN).any()
+    assert "TRAF15" not in capsys.readouterr().err  # labelled, scaled: nothing to warn about
+    # Bad options: one line, nothing written.
+    for bad, msg in ((["--image-size", "12x"], "expected WIDTHxHEIGHT"),
+                     (["--type-default", "tram"], "unknown agent type"),
+                     (["--pixel-scale", "-1"], "positive metres per pixel"), (["--fps", "0"], "positive frame rate")):
+        assert main(["import", "traf", str(src), "--out", str(tmp_path / "bad"), *bad]) == 2
+        assert msg in capsys.readouterr().err and not (tmp_path / "bad").exists()
+    assert main(["import", "eth-ucy", str(DATA / "eth_ucy"), "--out", str(tmp_path / "bad"), "--fps", "5"]) == 2
+    assert "option of `import traf`" in capsys.readouterr().err
+
+
+def test_traf_image_size_from_the_data():
+    """The frame size is the smallest common video size holding the boxes (TRAF11 runs 7 px off its 1280 edge)."""
+    sizes = {name: im.import_traf([DATA / "traf" / f"{name}_gt.txt"])[0].meta["image_size"]
+             for name in ("TRAF11", "TRAF18", "TRAF25", "TRAF37")}
+    assert sizes == {"TRAF11": [1280, 720], "TRAF18": [640, 360], "TRAF25": [640, 480], "TRAF37": [960, 540]}
