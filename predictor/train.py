@@ -187,7 +187,8 @@ def train_command(args: argparse.Namespace) -> int:
     res = train(args.data, model=args.model, out=args.out, epochs=args.epochs, warmup_epochs=args.warmup_epochs,
                 batch_size=args.batch_size, lr=args.lr, seed=args.seed, max_samples=args.max_samples,
                 max_val_samples=VAL_SAMPLES, test_scenes=getattr(args, "test_scenes", None),
-                window=_protocol_window(getattr(args, "protocol", None)))
+                window=_protocol_window(getattr(args, "protocol", None)),
+                model_config={"residual": bool(getattr(args, "residual", True))})
     if set(res["config"]["split"]["val"]) & set(res["config"]["split"]["train"]):
         print(f"note: one scene left to train on, so validation (checkpoint choice) used the training scene(s) "
               f"{', '.join(res['config']['split']['train'])}")

@@ -60,6 +60,7 @@ class Profile:
     stride: int
     max_val_samples: int | None = None
     seed: int = 0
+    residual: bool = True
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -108,7 +109,7 @@ def run_method(job: MethodJob) -> dict[str, Any]:
         res = train(Path(job.data), model=job.method, out=out, epochs=p.epochs, warmup_epochs=p.warmup_epochs,
                     batch_size=p.batch_size, lr=p.lr, seed=p.seed, max_samples=p.max_samples,
                     window=WindowConfig(stride=p.stride), threads=1, progress=False,
-                    max_val_samples=p.max_val_samples)
+                    max_val_samples=p.max_val_samples, model_config={"residual": p.residual})
         predictor = ModelPredictor.from_run(out)
         row.update(train_s=round(time.perf_counter() - t0, 2),
                    params=int(sum(t.numel() for t in predictor.model.parameters())),
@@ -251,7 +252,8 @@ def format_markdown(results: dict[str, Any]) -> str:
              f"Profile `{prof['name']}`: {prof['epochs']} epochs ({prof['warmup_epochs']} MSE warm-up), batch "
              f"{prof['batch_size']}, lr {prof['lr']:g}, at most {prof['max_samples'] or 'all'} training windows "
              f"(stride {prof['stride']} frames; validation on at most {prof.get('max_val_samples') or 'all'}), "
-             f"seed {prof['seed']}. Protocol `{results['protocol']}` (3 s history, "
+             f"seed {prof['seed']}, {'residual over constant velocity' if prof.get('residual') else 'direct'} "
+             "means. Protocol `{results['protocol']}` (3 s history, "
              f"5 s future, 5 Hz) on the held-out test scenes. Data hash `{str(results['data_hash'])[:16]}`, config "
              f"hash `{results['config_hash']}`, wall time {results['wall_s']:.0f} s.", "",
              "## Data set (the paper's Table 1)", "", stats_table(results["stats"]), "",
@@ -317,7 +319,10 @@ def write_results(results: dict[str, Any], out: Path) -> None:
 
 def benchmark_command(args: argparse.Namespace) -> int:
     """CLI: `simharness benchmark --data DIR [--profile quick|medium|full] [--out DIR] [--workers N]`."""
-    res = benchmark(args.data, args.profile, args.out, workers=args.workers, executor=args.executor,
+    profile = PROFILES[args.profile]
+    if getattr(args, "residual", True) != profile.residual:
+        profile = dataclasses.replace(profile, residual=args.residual)
+    res = benchmark(args.data, profile, args.out, workers=args.workers, executor=args.executor,
                     address=args.address)
     text = format_markdown(res)
     start = text.index("## Methods")

@@ -102,6 +102,9 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--protocol", default=None,
                    help="train on this evaluation protocol's windows (eth-ucy: 8 + 12 frames at 2.5 Hz); "
                         "default 3 s + 5 s at 5 Hz")
+    t.add_argument("--residual", action=argparse.BooleanOptionalAction, default=True,
+                   help="predict a correction to constant-velocity extrapolation (default) or, with --no-residual, "
+                        "the means directly as in the paper")
 
     e = cmd("evaluate", "simharness.evaluation:evaluate_command", "score a predictor open-loop on a data set")
     e.add_argument("--data", type=Path, required=True)
@@ -128,6 +131,8 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--profile", choices=["quick", "medium", "full"], default="quick",
                    help="training budget: quick (tests), medium (~10-15 CPU-minutes), full (the paper's 16 epochs)")
     b.add_argument("--out", type=Path, default=Path("runs/benchmark"))
+    b.add_argument("--residual", action=argparse.BooleanOptionalAction, default=True,
+                   help="train every method in the residual form (default) or the paper's (--no-residual)")
 
     i = cmd("import", "simharness.io.importers:import_command", "convert a public data set into ours")
     i.add_argument("format", help="eth-ucy, traf, apolloscape, commonroad, argoverse2, tracknpred")

@@ -13,6 +13,9 @@ class ModelConfig:
     history, future: frames; embed, encoder, decoder: layer widths; pos_scale: metres per unit of the
     position inputs; max_neighbours, max_horizon: agents kept in the ellipse and the semi-ellipse;
     neighbour_grid, horizon_grid: (along, lateral) cells of the two maps.
+    residual: the means are constant-velocity extrapolation plus a learned correction (summed per-step
+        displacements, `residual_scale` metres per unit, zero at initialisation), not the paper's direct
+        form; False in configs written before the option existed.
     """
 
     history: int = 15
@@ -25,6 +28,8 @@ class ModelConfig:
     max_horizon: int = 6
     neighbour_grid: tuple[int, int] = (13, 5)
     horizon_grid: tuple[int, int] = (7, 5)
+    residual: bool = False
+    residual_scale: float = 0.5
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)

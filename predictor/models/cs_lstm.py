@@ -19,7 +19,7 @@ from torch import nn
 from torch.nn import functional as fn
 
 from predictor.models.config import ModelConfig
-from predictor.models.gaussian import gaussian_head
+from predictor.models.gaussian import output, zero_means
 from predictor.models.rnn_ed import positions
 
 
@@ -52,6 +52,8 @@ class CSLSTM(nn.Module):
         social = cfg.conv2 * ((gx - 4) // 2 + 1) * (gy - 2)
         self.decoder = nn.LSTM(cfg.dyn_embed + social, cfg.decoder, batch_first=True)
         self.out = nn.Linear(cfg.decoder, 5)
+        if cfg.residual:
+            zero_means(self.out)
 
     def _encode(self, omega: torch.Tensor) -> torch.Tensor:
         """omega (M, H, D) -> (M, encoder)."""
@@ -78,4 +80,4 @@ class CSLSTM(nn.Module):
         soc = self.conv(self.social_tensor(batch["nbr"], batch["nbr_cell"]))
         z = torch.cat([soc, ego], -1)
         y, _ = self.decoder(z[:, None].expand(-1, self.cfg.future, -1))
-        return gaussian_head(self.out(y), self.cfg.pos_scale)
+        return output(self.out(y), self.cfg, batch["hist"])

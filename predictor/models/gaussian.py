@@ -1,17 +1,68 @@
-"""The bivariate Gaussian output every learned model emits per future step."""
+"""The bivariate Gaussian output every learned model emits per future step, and the residual form of its means."""
 
 from __future__ import annotations
 
 import torch
+from torch import nn
 from torch.nn import functional as fn
+
+from predictor.features import FEATURES
+from predictor.models.config import ModelConfig
+
+_XY = [FEATURES.index("x"), FEATURES.index("y")]
+_PRESENT = FEATURES.index("present")
 
 
 def gaussian_head(o: torch.Tensor, scale: float, mu: torch.Tensor | None = None) -> torch.Tensor:
     """Raw outputs (..., 5) -> (mu_x, mu_y, sigma_x, sigma_y, rho) (..., 5): metres, sigma > 0, |rho| < 1.
 
     mu: optional (..., 2) means in metres computed by the model itself (TraPHic sums per-step
-    displacements); by default o[..., :2] * scale.
+    displacements; residual models add a correction to constant velocity); by default o[..., :2] * scale.
     """
     mu = o[..., :2] * scale if mu is None else mu
     sigma = (fn.softplus(o[..., 2:4]) + 1e-3) * scale
     return torch.cat([mu, sigma, torch.tanh(o[..., 4:5])], -1)
+
+
+def cv_step(hist: torch.Tensor) -> torch.Tensor:
+    """The target's last displacement per window step (B, 2), metres, from its Omega hist (B, H, D).
+
+    Now (the last step) minus the latest earlier step where the target is present, divided by the steps
+    between them (one step back when present: the constant-velocity baseline's lag 1); zero without one.
+    """
+    xy, present = hist[..., _XY], hist[..., _PRESENT] > 0.5
+    h = hist.shape[1]
+    ks = torch.arange(h - 1, device=hist.device)
+    prev = torch.where(present[:, :-1], ks, -1).amax(1)  # (B,) latest earlier present step, -1 none
+    gap = (h - 1 - prev).clamp_min(1).to(hist.dtype)
+    back = xy.gather(1, prev.clamp_min(0)[:, None, None].expand(-1, 1, 2))[:, 0]
+    step = (xy[:, -1] - back) / gap[:, None]
+    return torch.where((prev >= 0)[:, None], step, torch.zeros_like(step))
+
+
+def cv_extrapolation(hist: torch.Tensor, future: int) -> torch.Tensor:
+    """Constant-velocity means (B, F, 2), metres, target frame: now + k * cv_step for k = 1 .. F."""
+    k = torch.arange(1, future + 1, device=hist.device, dtype=hist.dtype)
+    return hist[:, -1, None, _XY] + k[None, :, None] * cv_step(hist)[:, None]
+
+
+def residual_means(o_mu: torch.Tensor, hist: torch.Tensor, scale: float) -> torch.Tensor:
+    """Constant velocity plus a correction: o_mu (B, F, 2) per-step displacement corrections (summed, so the
+    first steps stay near constant velocity), `scale` metres per unit -> means (B, F, 2) metres."""
+    return cv_extrapolation(hist, o_mu.shape[1]) + torch.cumsum(o_mu, 1) * scale
+
+
+def zero_means(layer: nn.Linear, rows: int = 2) -> None:
+    """Zero the first `rows` outputs of `layer` (the mean corrections): a residual model starts as constant
+    velocity exactly."""
+    with torch.no_grad():
+        layer.weight[:rows].zero_()
+        layer.bias[:rows].zero_()
+
+
+def output(o: torch.Tensor, cfg: ModelConfig, hist: torch.Tensor, mu: torch.Tensor | None = None) -> torch.Tensor:
+    """A model's raw outputs (B, F, 5) -> its Gaussian (B, F, 5): the residual form when cfg.residual, else
+    the model's own means `mu` (default o[..., :2] * pos_scale); hist (B, H, D) the target's Omega."""
+    if cfg.residual:
+        mu = residual_means(o[..., :2], hist, cfg.residual_scale)
+    return gaussian_head(o, cfg.pos_scale, mu)

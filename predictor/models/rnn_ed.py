@@ -17,7 +17,7 @@ from torch.nn import functional as fn
 
 from predictor.features import FEATURES
 from predictor.models.config import ModelConfig
-from predictor.models.gaussian import gaussian_head
+from predictor.models.gaussian import output, zero_means
 
 _XY = [FEATURES.index("x"), FEATURES.index("y")]
 _PRESENT = FEATURES.index("present")
@@ -45,10 +45,12 @@ class RNNED(nn.Module):
         self.encoder = nn.LSTM(cfg.embed, cfg.encoder, batch_first=True)
         self.decoder = nn.LSTM(cfg.encoder, cfg.decoder, batch_first=True)
         self.out = nn.Linear(cfg.decoder, 5)
+        if cfg.residual:
+            zero_means(self.out)
 
     def forward(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
         xy, present = positions(batch["hist"], self.cfg.pos_scale)
         x = fn.leaky_relu(self.embed(xy), 0.1) * present[..., None]  # missing steps carry no input
         _, (h, _) = self.encoder(x)
         y, _ = self.decoder(h[0][:, None].expand(-1, self.cfg.future, -1))
-        return gaussian_head(self.out(y), self.cfg.pos_scale)
+        return output(self.out(y), self.cfg, batch["hist"])

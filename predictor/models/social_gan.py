@@ -27,6 +27,7 @@ from torch import nn
 from torch.nn import functional as fn
 
 from predictor.models.config import ModelConfig
+from predictor.models.gaussian import cv_step, zero_means
 from predictor.models.rnn_ed import positions
 
 
@@ -96,6 +97,8 @@ class SocialGAN(nn.Module):
         self.context = _mlp(cfg.encoder + cfg.bottleneck, cfg.mlp, cfg.decoder - cfg.noise_dim)
         self.cell = nn.LSTMCell(cfg.embed, cfg.decoder)
         self.to_step = nn.Linear(cfg.decoder, 2)
+        if cfg.residual:
+            zero_means(self.to_step)
         self.discriminator = Discriminator(cfg)
         self._d_opt: torch.optim.Optimizer | None = None
 
@@ -131,10 +134,12 @@ class SocialGAN(nn.Module):
         xy, _ = positions(hist, 1.0)
         pos = xy[:, -1].repeat_interleave(k, 0)
         step = (xy[:, -1] - xy[:, -2]).repeat_interleave(k, 0)
+        cv = cv_step(hist).repeat_interleave(k, 0) if cfg.residual else None
         out = []
         for _ in range(cfg.future):  # autoregressive: each step's input is the previous displacement
             h, c = self.cell(fn.relu(self.embed(step / cfg.disp_scale)), (h, c))
-            step = self.to_step(h) * cfg.disp_scale
+            # Residual: constant velocity's step plus a correction (zero at initialisation).
+            step = self.to_step(h) * cfg.disp_scale if cv is None else cv + self.to_step(h) * cfg.residual_scale
             pos = pos + step
             out.append(pos)
         return torch.stack(out, 1).view(b, k, cfg.future, 2)

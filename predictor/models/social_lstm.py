@@ -20,7 +20,7 @@ from torch import nn
 from torch.nn import functional as fn
 
 from predictor.models.config import ModelConfig
-from predictor.models.gaussian import gaussian_head
+from predictor.models.gaussian import output, zero_means
 from predictor.models.rnn_ed import positions
 
 
@@ -65,6 +65,8 @@ class SocialLSTM(nn.Module):
         self.cell = nn.LSTMCell(cfg.embed + cfg.social_embed, cfg.encoder)
         self.decoder = nn.LSTM(cfg.encoder, cfg.decoder, batch_first=True)
         self.out = nn.Linear(cfg.decoder, 5)
+        if cfg.residual:
+            zero_means(self.out)
 
     def encode(self, omega: torch.Tensor) -> torch.Tensor:
         """omega (B, A, H, D) of a group (row 0 the target) -> (B, A, encoder) last hidden states."""
@@ -90,4 +92,4 @@ class SocialLSTM(nn.Module):
         group = torch.cat([batch["hist"][:, None], batch["nbr"]], 1)  # (B, 1 + K, H, D)
         h = self.encode(group)[:, 0]
         y, _ = self.decoder(h[:, None].expand(-1, self.cfg.future, -1))
-        return gaussian_head(self.out(y), self.cfg.pos_scale)
+        return output(self.out(y), self.cfg, batch["hist"])

@@ -36,7 +36,7 @@ from torch.nn import functional as fn
 
 from predictor.features import FEATURES, HOMOGENEOUS_FEATURES, NUM_FEATURES
 from predictor.models.config import ModelConfig
-from predictor.models.gaussian import gaussian_head
+from predictor.models.gaussian import output, zero_means
 from predictor.models.lstm import constant_input_lstm
 
 # Fixed input scales (metres, m/s, counts) so every feature is of order one.
@@ -91,6 +91,8 @@ class TraPHic(nn.Module):
             z += cfg.conv2 * (hx // 2) * (hy // 2)
         self.decoder = nn.LSTM(z, cfg.decoder, batch_first=True)
         self.out = nn.Linear(cfg.decoder, 5)
+        if cfg.residual:
+            zero_means(self.out)
 
     def _embed_weight(self, enc: nn.ModuleDict) -> torch.Tensor:
         """The embedding's weight over all NUM_FEATURES inputs with the input scales folded in (E, NUM_FEATURES):
@@ -150,4 +152,4 @@ class TraPHic(nn.Module):
         z = torch.cat(parts, -1)
         o = self.out(constant_input_lstm(self.decoder, z, cfg.future))  # z at every step, projected once
         # Means as summed per-step displacements: a constant output is constant velocity, easy to start from.
-        return gaussian_head(o, cfg.pos_scale, mu=torch.cumsum(o[..., :2], 1) * cfg.step_scale)
+        return output(o, cfg, batch["hist"], mu=torch.cumsum(o[..., :2], 1) * cfg.step_scale)

@@ -1,0 +1,87 @@
+"""The residual form (means = constant velocity + a learned correction): constant velocity at initialisation,
+trains, and checkpoints written before the option load in the paper's form."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from _predictor_data import flow_scene, write_flow_dataset
+
+from predictor.features import FeatureStore, WindowConfig
+from predictor.losses import mse
+from predictor.models import build_model
+from predictor.models.const_vel import ConstantVelocity
+from predictor.models.gaussian import cv_extrapolation
+from predictor.predict import ModelPredictor
+from predictor.train import train
+
+ALL = ("traphic", "traphic-b", "rnn-ed", "social-lstm", "social-gan", "cs-lstm")
+
+
+@pytest.fixture(scope="module")
+def batch() -> dict[str, torch.Tensor]:
+    scenes = [flow_scene(s, n=10, t=45) for s in range(2)]
+    store = FeatureStore.build(scenes, ["s0", "s1"], WindowConfig())
+    return store.batch(np.arange(0, len(store), 7)[:32]).tensors()
+
+
+@pytest.mark.parametrize("name", ALL)
+def test_residual_model_starts_as_constant_velocity(name: str) -> None:
+    """Through the whole predictor (features, model, world frame), an untrained residual model forecasts what the
+    constant-velocity baseline forecasts; the paper's form does not."""
+    scene = flow_scene(3, n=12, t=16)
+    rows = np.arange(12)
+    cv = ConstantVelocity().predict(scene, rows, 25).mean
+    for residual, close in ((True, True), (False, False)):
+        torch.manual_seed(0)
+        net = build_model(name, {"history": 15, "future": 25, "residual": residual}).eval()
+        fc = ModelPredictor(net, WindowConfig(), name).predict(scene, rows, 25)
+        err = np.abs(fc.mean - cv).max()
+        assert (err < 1e-3) == close, (residual, err)
+
+
+def test_cv_extrapolation_skips_a_missing_previous_step(batch: dict[str, torch.Tensor]) -> None:
+    hist = batch["hist"].clone()
+    full = cv_extrapolation(hist, 5)
+    hist[:, -2] = 0.0  # one step back absent: the step before it, over two steps, gives the same constant velocity
+    gap = cv_extrapolation(hist, 5)
+    assert torch.allclose(full, gap, atol=0.1)  # the flow scenes' speeds change slowly
+    hist[:, :-1] = 0.0  # no earlier step at all: standing still
+    assert torch.equal(cv_extrapolation(hist, 5), torch.zeros_like(full))
+
+
+@pytest.mark.parametrize("name", ALL)
+def test_residual_model_learns_beyond_constant_velocity(name: str, batch: dict[str, torch.Tensor]) -> None:
+    """The flow scenes accelerate and curve: a few steps on one batch must beat constant velocity on it."""
+    torch.manual_seed(0)
+    net = build_model(name, {"history": 15, "future": 25, "residual": True})
+    opt = torch.optim.Adam(net.parameters(), lr=3e-3)
+    cv = float(mse(torch.cat([cv_extrapolation(batch["hist"], 25), torch.ones_like(batch["fut"]),
+                              torch.zeros_like(batch["fut"][..., :1])], -1), batch["fut"], batch["fut_valid"]))
+    for _ in range(40):
+        if hasattr(net, "training_step"):
+            net.training_step(batch, "mse", opt)
+        else:
+            loss = mse(net(batch), batch["fut"], batch["fut_valid"])
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+    with torch.no_grad():
+        if name == "social-gan":  # best of 4 samples, what the generator's variety loss trains
+            err = ((net.sample(batch, 4, seed=1) - batch["fut"][:, None]) ** 2).sum(-1).mean(-1).min(1).values.mean()
+        else:
+            err = mse(net(batch), batch["fut"], batch["fut_valid"])
+    assert float(err) < 0.85 * cv, (float(err), cv)
+
+
+def test_old_checkpoints_load_in_the_papers_form(tmp_path) -> None:
+    """Configs without the key (the shipped weights, runs before the option) read as residual = False, and a
+    residual run's config round-trips with the key."""
+    shipped = ModelPredictor.shipped("traphic")
+    assert "residual" not in shipped.info["model_config"] and shipped.model.cfg.residual is False
+    data = write_flow_dataset(tmp_path / "data", scenes=3)
+    train(data, "rnn-ed", tmp_path / "run", epochs=1, warmup_epochs=1, batch_size=64, max_samples=128,
+          threads=1, progress=False, model_config={"residual": True}, cache_dir=tmp_path / "cache")
+    run = ModelPredictor.from_run(tmp_path / "run")
+    assert run.info["model_config"]["residual"] is True and run.model.cfg.residual is True
