@@ -187,7 +187,7 @@ def train_command(args: argparse.Namespace) -> int:
     res = train(args.data, model=args.model, out=args.out, epochs=args.epochs, warmup_epochs=args.warmup_epochs,
                 batch_size=args.batch_size, lr=args.lr, seed=args.seed, max_samples=args.max_samples,
                 max_val_samples=VAL_SAMPLES, test_scenes=getattr(args, "test_scenes", None),
-                window=_protocol_window(getattr(args, "protocol", None)),
+                window=protocol_window(getattr(args, "protocol", None)),
                 model_config={"residual": bool(getattr(args, "residual", True))})
     if set(res["config"]["split"]["val"]) & set(res["config"]["split"]["train"]):
         print(f"note: one scene left to train on, so validation (checkpoint choice) used the training scene(s) "
@@ -198,10 +198,11 @@ def train_command(args: argparse.Namespace) -> int:
     return 0
 
 
-def _protocol_window(protocol: str | None) -> WindowConfig | None:
-    """`--protocol NAME`: training windows of that evaluation protocol's length and rate (None: the default)."""
+def protocol_window(protocol: str | None, **more: Any) -> WindowConfig | None:
+    """`--protocol NAME`: training windows of that evaluation protocol's length and rate (None: the default).
+    more: other WindowConfig fields (e.g. stride)."""
     if protocol is None:
-        return None
+        return WindowConfig(**more) if more else None
     from simharness.protocols import get_protocol, window_seconds
 
-    return WindowConfig(**window_seconds(get_protocol(protocol)))
+    return WindowConfig(**window_seconds(get_protocol(protocol)), **more)

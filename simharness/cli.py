@@ -100,7 +100,8 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--test-scenes", type=parse_names, default=None,
                    help="hold these scenes out (leave-one-scene-out), e.g. hotel; default: a split by scene hash")
     t.add_argument("--protocol", default=None,
-                   help="train on this evaluation protocol's windows (eth-ucy: 8 + 12 frames at 2.5 Hz); "
+                   help="train on this evaluation protocol's windows (eth-ucy: 8 + 12 frames at 2.5 Hz; "
+                        "apolloscape: 3 + 3 at 2 Hz); "
                         "default 3 s + 5 s at 5 Hz")
     t.add_argument("--residual", action=argparse.BooleanOptionalAction, default=True,
                    help="predict a correction to constant-velocity extrapolation (default) or, with --no-residual, "
@@ -110,7 +111,8 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--data", type=Path, required=True)
     e.add_argument("--model", required=True, help="a run folder, 'traphic' (shipped weights) or 'const-vel'")
     e.add_argument("--out", type=Path, default=None, help="folder for metrics.json and figures")
-    e.add_argument("--protocol", default="traphic", help="traphic (3 s / 5 s) or eth-ucy (8 / 12 frames)")
+    e.add_argument("--protocol", default="traphic",
+                   help="traphic (3 s / 5 s), eth-ucy (8 / 12 frames at 2.5 Hz) or apolloscape (3 / 3 frames at 2 Hz)")
     e.add_argument("--split", default="test", choices=["test", "all"], help="held-out scenes or every scene")
     e.add_argument("--test-scenes", type=parse_names, default=None,
                    help="the scenes held out in training (leave-one-scene-out), e.g. hotel")
@@ -133,6 +135,8 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--out", type=Path, default=Path("runs/benchmark"))
     b.add_argument("--residual", action=argparse.BooleanOptionalAction, default=True,
                    help="train every method in the residual form (default) or the paper's (--no-residual)")
+    b.add_argument("--protocol", default="traphic",
+                   help="evaluation protocol (training windows of its length and rate): traphic, eth-ucy, apolloscape")
 
     i = cmd("import", "simharness.io.importers:import_command", "convert a public data set into ours")
     i.add_argument("format", help="eth-ucy, traf, apolloscape, commonroad, argoverse2, tracknpred")

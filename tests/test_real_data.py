@@ -146,3 +146,91 @@ def test_traf_image_size_from_the_data():
     sizes = {name: im.import_traf([DATA / "traf" / f"{name}_gt.txt"])[0].meta["image_size"]
              for name in ("TRAF11", "TRAF18", "TRAF25", "TRAF37")}
     assert sizes == {"TRAF11": [1280, 720], "TRAF18": [640, 360], "TRAF25": [640, 480], "TRAF37": [960, 540]}
+
+
+# ---------------------------------------------------------------------- ApolloScape scored from the CLI (issue 14)
+@pytest.fixture(scope="module")
+def apollo(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("apollo") / "apollo"
+    assert main(["import", "apolloscape", str(DATA / "apolloscape"), "--out", str(out)]) == 0
+    return out
+
+
+def test_apolloscape_protocol_windows(apollo):
+    """2 Hz, 3 observed + 3 predicted frames: a 6-frame chunk gives one window, of the agents in all 6 frames."""
+    from simharness.protocols import get_protocol, windows
+
+    p = get_protocol("apolloscape")
+    ds = Dataset(apollo)
+    scene = ds.scene(ds.scene_ids[0])
+    assert scene.dt == 0.5 and p.step(scene.dt) == 1 and (p.history, p.future) == (3, 3)
+    wins = list(windows(scene, p))
+    assert [now for now, _ in wins] == list(range(2, scene.num_frames - 3))
+    now, rows = wins[0]
+    assert scene.valid[rows, now - 2:now + 4].all() and not scene.valid[~np.isin(np.arange(scene.num_agents), rows),
+                                                                        now - 2:now + 4].all(1).any()
+
+
+def test_apolloscape_train_evaluate_benchmark(apollo, tmp_path):
+    """train / evaluate / benchmark --protocol apolloscape: 3 + 3 frames at 2 Hz end to end on the real sample."""
+    from simharness.benchmark import benchmark
+
+    run = tmp_path / "run"
+    assert main(["train", "--data", str(apollo), "--protocol", "apolloscape", "--epochs", "1", "--warmup-epochs", "1",
+                 "--out", str(run)]) == 0
+    cfg = json.loads((run / "config.json").read_text())
+    assert (cfg["frames"]["history"], cfg["frames"]["future"], cfg["window"]["hz"]) == (3, 3, 2.0)
+    for model in (str(run), "const-vel"):
+        assert main(["evaluate", "--data", str(apollo), "--model", model, "--protocol", "apolloscape",
+                     "--out", str(tmp_path / Path(model).name)]) == 0
+    t, cv = _metrics(tmp_path / "run"), _metrics(tmp_path / "const-vel")
+    assert t["samples"] == cv["samples"] > 20 and t["units"] == "m" and len(t["rmse_per_second"]) == 1
+    assert t["protocol"]["name"] == "apolloscape" and math.isfinite(t["ade"]) and t["fde"] > 0
+    res = benchmark(apollo, "quick", tmp_path / "bench", workers=1, methods=("traphic",), progress=False,
+                    protocol="apolloscape")
+    assert res["protocol"] == "apolloscape" and res["methods"]["traphic"]["metrics"]["samples"] == cv["samples"]
+    assert "1.5 s history, 1.5 s future, 2 Hz" in (tmp_path / "bench" / "results.md").read_text()
+    assert main(["benchmark", "--data", str(apollo), "--protocol", "nope", "--out", str(tmp_path / "b2")]) == 2
+
+
+# ---------------------------------------------------------------------- ETH/UCY validation on *_val files (issue 14)
+def _sgan_layout(root: Path) -> Path:
+    """A Social-GAN style leave-one-out folder from the real samples: zara01 held out (test/), hotel cut in time
+    into its _train (first 80% of lines) and _val files, as the benchmark's own files are."""
+    lines = (DATA / "eth_ucy" / "biwi_hotel.txt").read_text().splitlines(keepends=True)
+    cut = int(len(lines) * 0.8)
+    for sub, name, text in (("train", "biwi_hotel_train.txt", lines[:cut]), ("val", "biwi_hotel_val.txt", lines[cut:]),
+                            ("test", "crowds_zara01.txt", (DATA / "eth_ucy" / "crowds_zara01.txt").read_text())):
+        (root / sub).mkdir(parents=True, exist_ok=True)
+        (root / sub / name).write_text("".join(text))
+    return root
+
+
+def test_split_uses_the_data_sets_own_val_files():
+    ids = ["biwi_eth", "biwi_hotel_train", "biwi_hotel_val", "crowds_zara01_train", "crowds_zara01_val"]
+    assert split_scenes(ids) == {"test": ["biwi_eth"], "train": ["biwi_hotel_train", "crowds_zara01_train"],
+                                 "val": ["biwi_hotel_val", "crowds_zara01_val"]}
+    # Every file of all five scenes: holding out hotel drops its _train / _val parts too.
+    five = ["biwi_eth", "biwi_hotel", "crowds_zara01", "crowds_zara02", "students003"]
+    every = five + [f"{s}_{k}" for s in five for k in ("train", "val")]
+    s = split_scenes(every, test_scenes=["hotel"])
+    assert s["test"] == ["biwi_hotel"] and s["val"] == [f"{x}_val" for x in five if x != "biwi_hotel"]
+    assert s["train"] == [f"{x}_train" for x in five if x != "biwi_hotel"]
+    with pytest.raises(UserError, match="leaves no val scene"):
+        split_scenes(["biwi_eth", "biwi_eth_val", "biwi_hotel_train"], test_scenes=["eth"])
+
+
+def test_eth_ucy_training_validates_on_val_files(tmp_path, capsys):
+    src = _sgan_layout(tmp_path / "zara1")
+    data = tmp_path / "data"
+    assert main(["import", "eth-ucy", str(src / "train"), str(src / "val"), str(src / "test"), "--out", str(data)]) == 0
+    run = tmp_path / "run"
+    assert main(["train", "--data", str(data), "--protocol", "eth-ucy", "--epochs", "1", "--warmup-epochs", "1",
+                 "--max-samples", "128", "--out", str(run)]) == 0
+    assert "validation (checkpoint choice) used the training" not in capsys.readouterr().out
+    cfg = json.loads((run / "config.json").read_text())
+    assert cfg["split"] == {"test": ["crowds_zara01"], "train": ["biwi_hotel_train"], "val": ["biwi_hotel_val"]}
+    assert 0 < cfg["train"]["val_samples"] < cfg["train"]["train_samples"] + 4000
+    assert main(["evaluate", "--data", str(data), "--model", str(run), "--protocol", "eth-ucy",
+                 "--out", str(tmp_path / "ev")]) == 0
+    assert _metrics(tmp_path / "ev")["scene_ids"] == ["crowds_zara01"]
