@@ -99,6 +99,8 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--max-samples", type=int, default=None, help="cap training windows (quick runs)")
     t.add_argument("--test-scenes", type=parse_names, default=None,
                    help="hold these scenes out (leave-one-scene-out), e.g. hotel; default: a split by scene hash")
+    t.add_argument("--init", default=None, metavar="RUN|shipped",
+                   help="fine-tune: start from a run folder's weights or the shipped ones (same model config)")
     t.add_argument("--protocol", default=None,
                    help="train on this evaluation protocol's windows (eth-ucy: 8 + 12 frames at 2.5 Hz; "
                         "apolloscape: 3 + 3 at 2 Hz); "

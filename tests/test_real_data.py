@@ -234,3 +234,41 @@ def test_eth_ucy_training_validates_on_val_files(tmp_path, capsys):
     assert main(["evaluate", "--data", str(data), "--model", str(run), "--protocol", "eth-ucy",
                  "--out", str(tmp_path / "ev")]) == 0
     assert _metrics(tmp_path / "ev")["scene_ids"] == ["crowds_zara01"]
+
+
+# ---------------------------------------------------------------------- sim-to-real: train --init (issue 14)
+def test_train_init_fine_tunes_shipped_and_run_weights(datasets, tmp_path, capsys):
+    """--init shipped starts TRAF training from the synthetic-data weights (its first validation is theirs, not a
+    random network's); --init RUN continues a run; another model config is refused in one line."""
+    import torch
+
+    from predictor.predict import ModelPredictor
+
+    traf, common = str(datasets["traf"]), ["--test-scenes", "TRAF12", "--epochs", "1", "--warmup-epochs", "1",
+                                            "--max-samples", "64", "--no-residual"]
+    tuned, scratch = tmp_path / "tuned", tmp_path / "scratch"
+    assert main(["train", "--data", traf, *common, "--init", "shipped", "--out", str(tuned)]) == 0
+    assert main(["train", "--data", traf, *common, "--out", str(scratch)]) == 0
+    cfg = json.loads((tuned / "config.json").read_text())
+    shipped = ModelPredictor.shipped("traphic").model.state_dict()
+    assert cfg["train"]["init"]["from"] == "shipped" and len(cfg["train"]["init"]["weights_sha256"]) == 64
+    # One epoch of 64 windows moves the weights a little from the shipped ones, far less than a fresh network.
+    after = ModelPredictor.from_run(tuned).model.state_dict()
+    fresh = ModelPredictor.from_run(scratch).model.state_dict()
+    moved = sum(float((after[k] - shipped[k]).abs().sum()) for k in shipped)
+    apart = sum(float((fresh[k] - shipped[k]).abs().sum()) for k in shipped)
+    assert 0 < moved < apart / 10 and all(torch.isfinite(v).all() for v in after.values())
+    assert main(["train", "--data", traf, *common, "--init", str(tuned), "--out", str(tmp_path / "again")]) == 0
+    assert json.loads((tmp_path / "again" / "config.json").read_text())["train"]["init"]["from"] == str(tuned)
+    capsys.readouterr()
+    # The residual form (the default) is another network than the shipped paper-form weights.
+    assert main(["train", "--data", traf, *common[:-1], "--init", "shipped", "--out", str(tmp_path / "bad")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "--init shipped: its model config differs" in err
+    assert "residual False vs True" in err
+    assert main(["train", "--data", traf, *common, "--model", "cs-lstm", "--init", str(tuned),
+                 "--out", str(tmp_path / "bad2")]) == 2
+    assert "model 'traphic' vs 'cs-lstm'" in capsys.readouterr().err
+    assert main(["train", "--data", traf, *common, "--init", str(tmp_path / "nope"),
+                 "--out", str(tmp_path / "b3")]) == 2
+    assert "not a run folder" in capsys.readouterr().err
