@@ -101,8 +101,8 @@ class WindowConfig:
         if "units_per_m" in scene.meta:
             return float(scene.meta["units_per_m"])
         raise UserError(f"scene {scene.meta.get('scene_id', '')!r} is in {scene.units!r}, not metres, and records no "
-                        "meta['units_per_m']; give WindowConfig(length_scale=UNITS_PER_METRE) so that the "
-                        "ellipses and grids have a size in its units")
+                        "pixels-per-metre scale (meta['units_per_m']), which sizes the ellipses and grids; "
+                        "re-import it with `simharness import traf ... --pixel-scale M_PER_PX` (or --type-default car)")
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)

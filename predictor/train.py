@@ -81,8 +81,12 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
           max_samples: int | None = None, window: WindowConfig | None = None,
           model_config: dict[str, Any] | None = None, threads: int | None = None,
           progress: bool = True, max_val_samples: int | None = None,
-          test_scenes: list[str] | None = None, cache_dir: Path | None = None) -> dict[str, Any]:
+          test_scenes: list[str] | None = None, cache_dir: Path | None = None,
+          init: str | Path | None = None) -> dict[str, Any]:
     """Train `model` on the train split of `data`, keep the best on the val split -> summary dict.
+
+    init: start from these weights instead of random ones (fine-tuning, e.g. sim-to-real): a run folder, or
+    "shipped" for predictor/weights/<model>; its model and model config must be this run's (`init_weights`).
 
     Writes out/model.pt, out/config.json, out/log.csv. Returns {"best_epoch", "best_val", "val_history",
     "train_samples", "samples_per_s", ...}.
@@ -117,6 +121,7 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
             "max_horizon": window.max_horizon, "neighbour_grid": window.neighbour_grid,
             "horizon_grid": window.horizon_grid, **(model_config or {})}
     net = build_model(model, mcfg)
+    init_info = init_weights(net, model, init) if init is not None else None
     opt = torch.optim.Adam(net.parameters(), lr=lr, fused=True)  # one kernel for all parameters
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -127,6 +132,8 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
                         "max_samples": max_samples, "train_samples": int(len(train_idx)),
                         "val_samples": int(len(val_idx))},
               "versions": versions()}
+    if init_info is not None:
+        config["train"]["init"] = init_info
     if max_val_samples is not None:
         config["train"]["max_val_samples"] = max_val_samples
     config["config_hash"] = hashlib.sha256(
@@ -184,6 +191,35 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
             "out": str(out), "config": config}
 
 
+def init_weights(net: Any, model: str, init: str | Path) -> dict[str, Any]:
+    """Load `init` (a run folder, or "shipped": predictor/weights/<model>) into `net` -> provenance for config.json.
+
+    UserError (one line) when the checkpoint is of another model or another model config (layer widths, frames,
+    residual form...): fine-tuning continues the same network, it does not adapt one."""
+    from predictor.checkpoint import load_checkpoint
+    from predictor.predict import WEIGHTS
+
+    if str(init) == "shipped":
+        weights, cfg_path = WEIGHTS / f"{model}.pt", WEIGHTS / f"{model}.json"
+        if not weights.is_file():
+            raise UserError(f"--init shipped: no shipped weights for {model!r} in {WEIGHTS}")
+    else:
+        weights, cfg_path = Path(init) / "model.pt", Path(init) / "config.json"
+        if not Path(init).is_dir():
+            raise UserError(f"--init {init}: not a run folder (expected model.pt and config.json), nor 'shipped'")
+    src, cfg = load_checkpoint(weights, cfg_path)
+    mine, theirs = net.cfg.to_dict(), src.cfg.to_dict()
+    diff = [f"{k} {theirs.get(k)} vs {mine.get(k)}" for k in sorted(set(mine) | set(theirs))
+            if mine.get(k) != theirs.get(k)]
+    if cfg["model"] != model or diff:
+        what = f"model {cfg['model']!r} vs {model!r}" if cfg["model"] != model else ", ".join(diff[:4])
+        raise UserError(f"--init {init}: its model config differs from this run's ({what}); train with the "
+                        "same model options (--protocol, --residual/--no-residual)")
+    net.load_state_dict(src.state_dict())
+    return {"from": str(init), "weights_sha256": hashlib.sha256(weights.read_bytes()).hexdigest(),
+            "config_hash": cfg.get("config_hash"), "data_hash": cfg.get("data_hash")}
+
+
 def train_command(args: argparse.Namespace) -> int:
     """`simharness train --data DIR --model NAME --out RUN [...]`."""
     from simharness.io.folders import prepare_output
@@ -192,8 +228,8 @@ def train_command(args: argparse.Namespace) -> int:
     res = train(args.data, model=args.model, out=args.out, epochs=args.epochs, warmup_epochs=args.warmup_epochs,
                 batch_size=args.batch_size, lr=args.lr, seed=args.seed, max_samples=args.max_samples,
                 max_val_samples=VAL_SAMPLES, test_scenes=getattr(args, "test_scenes", None),
-                window=_protocol_window(getattr(args, "protocol", None)),
-                model_config={"residual": bool(getattr(args, "residual", True))})
+                window=protocol_window(getattr(args, "protocol", None)),
+                model_config={"residual": bool(getattr(args, "residual", True))}, init=getattr(args, "init", None))
     if set(res["config"]["split"]["val"]) & set(res["config"]["split"]["train"]):
         print(f"note: one scene left to train on, so validation (checkpoint choice) used the training scene(s) "
               f"{', '.join(res['config']['split']['train'])}")
@@ -203,10 +239,11 @@ def train_command(args: argparse.Namespace) -> int:
     return 0
 
 
-def _protocol_window(protocol: str | None) -> WindowConfig | None:
-    """`--protocol NAME`: training windows of that evaluation protocol's length and rate (None: the default)."""
+def protocol_window(protocol: str | None, **more: Any) -> WindowConfig | None:
+    """`--protocol NAME`: training windows of that evaluation protocol's length and rate (None: the default).
+    more: other WindowConfig fields (e.g. stride)."""
     if protocol is None:
-        return None
+        return WindowConfig(**more) if more else None
     from simharness.protocols import get_protocol, window_seconds
 
-    return WindowConfig(**window_seconds(get_protocol(protocol)))
+    return WindowConfig(**window_seconds(get_protocol(protocol)), **more)

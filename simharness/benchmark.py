@@ -86,15 +86,15 @@ class MethodJob:
     data: str
     out: str
     profile: Profile
+    protocol: str = PROTOCOL  # evaluation protocol; training windows of its length and rate
 
 
 def run_method(job: MethodJob) -> dict[str, Any]:
     """Train `job.method` on the train split, score it on the test split -> its row (runs in a worker process)."""
     import torch
 
-    from predictor.features import WindowConfig
     from predictor.predict import ModelPredictor
-    from predictor.train import train
+    from predictor.train import protocol_window, train
     from simharness.evaluation import evaluate
     from simharness.predictors import load_predictor
 
@@ -108,7 +108,7 @@ def run_method(job: MethodJob) -> dict[str, Any]:
     else:
         res = train(Path(job.data), model=job.method, out=out, epochs=p.epochs, warmup_epochs=p.warmup_epochs,
                     batch_size=p.batch_size, lr=p.lr, seed=p.seed, max_samples=p.max_samples,
-                    window=WindowConfig(stride=p.stride), threads=1, progress=False,
+                    window=protocol_window(job.protocol, stride=p.stride), threads=1, progress=False,
                     max_val_samples=p.max_val_samples, model_config={"residual": p.residual})
         predictor = ModelPredictor.from_run(out)
         row.update(train_s=round(time.perf_counter() - t0, 2),
@@ -116,7 +116,7 @@ def run_method(job: MethodJob) -> dict[str, Any]:
                    best_epoch=res["best_epoch"], train_samples=res["train_samples"],
                    samples_per_s=round(res["samples_per_s"], 1), config_hash=res["config"]["config_hash"])
     t1 = time.perf_counter()
-    metrics = evaluate(Path(job.data), predictor, PROTOCOL, split="test", progress=False, name=job.method)
+    metrics = evaluate(Path(job.data), predictor, job.protocol, split="test", progress=False, name=job.method)
     row["eval_s"] = round(time.perf_counter() - t1, 2)
     row["metrics"] = metrics
     out.mkdir(parents=True, exist_ok=True)
@@ -138,8 +138,10 @@ def _run_inline(jobs: list[MethodJob]) -> Iterator[JobResult]:
 # ---------------------------------------------------------------------------- the run
 def benchmark(data: Path, profile: str | Profile = "quick", out: Path = Path("runs/benchmark"), workers: int = 2,
               executor: str = "local", address: str | None = None, methods: tuple[str, ...] | None = None,
-              progress: bool = True) -> dict[str, Any]:
+              progress: bool = True, protocol: str = PROTOCOL) -> dict[str, Any]:
     """Train and score every method on `data` with one budget; write results.{md,json} and figures to `out`.
+
+    protocol: the evaluation protocol (`simharness.protocols`); methods train on windows of its length and rate.
 
     methods: a subset of METHODS (default all); the constant-velocity reference is always scored.
     workers: 1 runs every method here in turn; more run one fresh process per method, that many at once.
@@ -147,10 +149,10 @@ def benchmark(data: Path, profile: str | Profile = "quick", out: Path = Path("ru
     """
     from tqdm import tqdm
 
-    from predictor.features import WindowConfig
-    from predictor.train import load_windows
+    from predictor.train import load_windows, protocol_window
     from simharness.executors import make_executor
     from simharness.io.parquet import Dataset, software_versions
+    from simharness.protocols import get_protocol
     from simharness.stats import dataset_stats
 
     prof = PROFILES[profile] if isinstance(profile, str) and profile in PROFILES else profile
@@ -161,13 +163,14 @@ def benchmark(data: Path, profile: str | Profile = "quick", out: Path = Path("ru
     if unknown:
         raise UserError(f"unknown methods {unknown}; expected some of {', '.join(METHODS)}")
     data, out = Path(data), Path(out)
+    get_protocol(protocol)  # an unknown name fails here, before any training
     ds = Dataset(data)  # a bad folder fails here, before any training
     started = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
     t0 = time.perf_counter()
     # Build the windows cache once, here, so parallel jobs read it instead of each building it.
-    load_windows(data, WindowConfig(stride=prof.stride), progress=progress)
+    load_windows(data, protocol_window(protocol, stride=prof.stride), progress=progress)
     out.mkdir(parents=True, exist_ok=True)
-    jobs = [MethodJob(m, str(data), str(out / "runs" / m), prof) for m in (*chosen, REFERENCE)]
+    jobs = [MethodJob(m, str(data), str(out / "runs" / m), prof, protocol) for m in (*chosen, REFERENCE)]
     rows: dict[str, dict[str, Any]] = {}
     failed: dict[str, str] = {}
     # One worker: run in this process (imports once, no spawn); more: one fresh process per method.
@@ -190,8 +193,8 @@ def benchmark(data: Path, profile: str | Profile = "quick", out: Path = Path("ru
     order = [m for m in (*chosen, REFERENCE) if m in rows]
     results = {
         "data": str(data), "data_hash": ds.manifest.get("content_hash"), "scenario": ds.info.get("scenario"),
-        "profile": prof.to_dict(), "protocol": PROTOCOL, "started_utc": started,
-        "config_hash": hashlib.sha256(json.dumps([prof.to_dict(), chosen, PROTOCOL], sort_keys=True).encode())
+        "profile": prof.to_dict(), "protocol": protocol, "started_utc": started,
+        "config_hash": hashlib.sha256(json.dumps([prof.to_dict(), chosen, protocol], sort_keys=True).encode())
         .hexdigest()[:16],
         "methods": {m: rows[m] for m in order}, "failed": failed,
         "stats": dataset_stats(data),
@@ -243,6 +246,14 @@ def _md(rows: list[list[str]]) -> str:
     return "\n".join(lines + ["| " + " | ".join(r) + " |" for r in rows[1:]])
 
 
+def _protocol_text(name: str) -> str:
+    """"3 s history, 5 s future, 5 Hz" for a protocol name."""
+    from simharness.protocols import get_protocol
+
+    p = get_protocol(name)
+    return f"{p.history / p.hz:g} s history, {p.future / p.hz:g} s future, {p.hz:g} Hz"
+
+
 def format_markdown(results: dict[str, Any]) -> str:
     """results.md: data set figures, the main table, S-GAN best-of-K, the ablation, RMSE per second, verdict."""
     rows = results["methods"]
@@ -253,8 +264,8 @@ def format_markdown(results: dict[str, Any]) -> str:
              f"{prof['batch_size']}, lr {prof['lr']:g}, at most {prof['max_samples'] or 'all'} training windows "
              f"(stride {prof['stride']} frames; validation on at most {prof.get('max_val_samples') or 'all'}), "
              f"seed {prof['seed']}, {'residual over constant velocity' if prof.get('residual') else 'direct'} "
-             "means. Protocol `{results['protocol']}` (3 s history, "
-             f"5 s future, 5 Hz) on the held-out test scenes. Data hash `{str(results['data_hash'])[:16]}`, config "
+             f"means. Protocol `{results['protocol']}` ({_protocol_text(results['protocol'])}) on the held-out "
+             "test scenes. Data hash `{str(results['data_hash'])[:16]}`, config "
              f"hash `{results['config_hash']}`, wall time {results['wall_s']:.0f} s.", "",
              "## Data set (the paper's Table 1)", "", stats_table(results["stats"]), "",
              f"## Methods ({units}; lower is better)", "",
@@ -326,7 +337,7 @@ def benchmark_command(args: argparse.Namespace) -> int:
     if getattr(args, "residual", True) != profile.residual:
         profile = dataclasses.replace(profile, residual=args.residual)
     res = benchmark(args.data, profile, args.out, workers=args.workers, executor=args.executor,
-                    address=args.address)
+                    address=args.address, protocol=getattr(args, "protocol", PROTOCOL))
     text = format_markdown(res)
     start = text.index("## Methods")
     print(text[start:text.index("## RMSE per horizon second")].rstrip())

@@ -128,8 +128,11 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--max-samples", type=int, default=None, help="cap training windows (quick runs)")
     t.add_argument("--test-scenes", type=parse_names, default=None,
                    help="hold these scenes out (leave-one-scene-out), e.g. hotel; default: a split by scene hash")
+    t.add_argument("--init", default=None, metavar="RUN|shipped",
+                   help="fine-tune: start from a run folder's weights or the shipped ones (same model config)")
     t.add_argument("--protocol", default=None,
-                   help="train on this evaluation protocol's windows (eth-ucy: 8 + 12 frames at 2.5 Hz); "
+                   help="train on this evaluation protocol's windows (eth-ucy: 8 + 12 frames at 2.5 Hz; "
+                        "apolloscape: 3 + 3 at 2 Hz); "
                         "default 3 s + 5 s at 5 Hz")
     t.add_argument("--residual", action=argparse.BooleanOptionalAction, default=True,
                    help="predict a correction to constant-velocity extrapolation (default) or, with --no-residual, "
@@ -140,7 +143,8 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--model", required=True, help="a run folder, 'traphic' (shipped weights) or 'const-vel'")
     e.add_argument("--out", type=Path, default=None, help="folder for metrics.json and figures")
     force(e)
-    e.add_argument("--protocol", default="traphic", help="traphic (3 s / 5 s) or eth-ucy (8 / 12 frames)")
+    e.add_argument("--protocol", default="traphic",
+                   help="traphic (3 s / 5 s), eth-ucy (8 / 12 frames at 2.5 Hz) or apolloscape (3 / 3 frames at 2 Hz)")
     e.add_argument("--split", default="test", choices=["test", "all"], help="held-out scenes or every scene")
     e.add_argument("--test-scenes", type=parse_names, default=None,
                    help="the scenes held out in training (leave-one-scene-out), e.g. hotel")
@@ -165,12 +169,21 @@ def build_parser() -> argparse.ArgumentParser:
     force(b)
     b.add_argument("--residual", action=argparse.BooleanOptionalAction, default=True,
                    help="train every method in the residual form (default) or the paper's (--no-residual)")
+    b.add_argument("--protocol", default="traphic",
+                   help="evaluation protocol (training windows of its length and rate): traphic, eth-ucy, apolloscape")
 
     i = cmd("import", "simharness.io.importers:import_command", "convert a public data set into ours")
     i.add_argument("format", help="eth-ucy, traf, apolloscape, commonroad, argoverse2, tracknpred")
     i.add_argument("src", type=Path, nargs="+", help="source file(s) or folder")
     i.add_argument("--out", type=Path, required=True)
     i.add_argument("--allow-pickle", action="store_true", help="allow reading pickled .npy files you trust")
+    i.add_argument("--type-default", default=None, metavar="TYPE",
+                   help="traf: class of ids that are bare numbers (no class in the file), e.g. car; default other")
+    i.add_argument("--pixel-scale", type=float, default=None, metavar="M_PER_PX",
+                   help="traf: metres per pixel for videos without cars to estimate it from, e.g. 0.03")
+    i.add_argument("--fps", type=float, default=None, help="traf: video frame rate (default 20, the data set's)")
+    i.add_argument("--image-size", default=None, metavar="WxH",
+                   help="traf: video frame size in pixels (default: from the boxes' extent)")
 
     x = cmd("export", "simharness.io.exporters:export_command", "write a data set in another tool's layout")
     x.add_argument("format", help="tracknpred")

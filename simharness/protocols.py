@@ -53,6 +53,9 @@ PROTOCOLS: dict[str, EvalProtocol] = {
     # present in all 20 frames, windows with more than one such pedestrian (its min_ped=1, strict).
     "eth-ucy": EvalProtocol("eth-ucy", history=8, future=12, hz=2.5, stride=1, skip_empty_frames=True,
                             min_targets=2),
+    # ApolloScape trajectory as its challenge scores it: 2 Hz, 3 observed + 3 predicted frames (the data comes
+    # as chunks of about 6 frames, so each chunk gives about one window), agents present in all 6.
+    "apolloscape": EvalProtocol("apolloscape", history=3, future=3, hz=2.0, stride=1),
 }
 
 

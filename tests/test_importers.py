@@ -136,7 +136,8 @@ def test_motion_from_positions_line_and_stop():
 # ---------------------------------------------------------------------- the command
 def test_import_command_writes_a_dataset(tmp_path):
     out = tmp_path / "traf"
-    r = subprocess.run([sys.executable, "-m", "simharness", "import", "traf", str(TRAF), "--out", str(out)],
+    r = subprocess.run([sys.executable, "-m", "simharness", "import", "traf", str(TRAF / "TRAF11_gt.txt"),
+                        str(TRAF / "TRAF12_gt.txt"), "--out", str(out)],
                        capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     assert "units px" in r.stdout and "2 scene(s)" in r.stdout

@@ -13,6 +13,7 @@ from predictor.split import split_scenes
 from simharness.cli import main
 from simharness.errors import UserError
 from simharness.io import importers as im
+from simharness.io.parquet import Dataset
 from simharness.scene import AgentType
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
@@ -21,8 +22,10 @@ DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 @pytest.fixture(scope="module")
 def datasets(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     root = tmp_path_factory.mktemp("real")
-    for fmt, src in (("eth-ucy", "eth_ucy"), ("traf", "traf")):
-        assert main(["import", fmt, str(DATA / src), "--out", str(root / src)]) == 0
+    # TRAF11 and TRAF12: the two videos the figures below were measured on (the folder holds 17).
+    traf = [str(DATA / "traf" / f"TRAF{k}_gt.txt") for k in (11, 12)]
+    for fmt, src in (("eth-ucy", [str(DATA / "eth_ucy")]), ("traf", traf)):
+        assert main(["import", fmt, *src, "--out", str(root / fmt.replace("-", "_"))]) == 0
     return {"eth": root / "eth_ucy", "traf": root / "traf", "root": root}
 
 
@@ -96,3 +99,176 @@ def test_traphic_on_traf_pixels(datasets):
     # Agents sit 400-800 px from the image origin: a forecast left in the model's metre-like units would be
     # off by hundreds of px; a barely trained one is off by about 100 px (constant velocity: 47).
     assert 1.0 < m["ade"] < 200.0 and m["fde"] > m["ade"]
+
+
+# ---------------------------------------------------------------------- every TRAF video usable (issue 14)
+def test_import_traf_options_make_bare_numbered_videos_usable(tmp_path, capsys):
+    """TRAF13 has bare numeric ids (no class column) and is a 1920x1080 video: the import warns in one line,
+    types them with --type-default, estimates a pixel scale from the boxes, and takes the image size from the data."""
+    src = DATA / "traf" / "TRAF13_gt.txt"
+    assert main(["import", "traf", str(src), "--out", str(tmp_path / "plain")]) == 0
+    err = [line for line in capsys.readouterr().err.splitlines() if "warning" in line]
+    assert err == ["simharness: warning: TRAF13_gt.txt: 42 of 42 ids carry no class (bare numbers): typed other; "
+                   "give --type-default TYPE; no cars to estimate a pixel scale from; give --pixel-scale M_PER_PX "
+                   "(or --type-default car) to train or evaluate on it"]
+    plain = Dataset(tmp_path / "plain").scene("TRAF13_gt")
+    assert (plain.agent_type == AgentType.OTHER).all() and "units_per_m" not in plain.meta
+    assert plain.meta["image_size"] == [1920, 1080] and plain.dt == pytest.approx(0.05)
+    # Training on it stops with a line whose fix is a real option of `import traf`.
+    code = main(["train", "--data", str(tmp_path / "plain"), "--test-scenes", "TRAF13", "--out", str(tmp_path / "r")])
+    assert code == 2 and "--pixel-scale M_PER_PX" in capsys.readouterr().err
+
+    assert main(["import", "traf", str(src), "--out", str(tmp_path / "typed"), "--type-default", "car",
+                 "--fps", "10", "--image-size", "2000x1100"]) == 0
+    typed = Dataset(tmp_path / "typed").scene("TRAF13_gt")
+    assert (typed.agent_type == AgentType.CAR).all() and typed.dt == pytest.approx(0.1)
+    assert typed.meta["units_per_m"] == pytest.approx(np.median(typed.length) / 1.7, abs=0.01)
+    assert typed.meta["image_size"] == [2000, 1100] and typed.meta["untyped_ids"] == 42
+
+    # A video with labelled classes but no cars (TRAF15: humans, chairs, desks) takes --pixel-scale.
+    assert main(["import", "traf", str(DATA / "traf" / "TRAF15_gt.txt"), "--out", str(tmp_path / "p"),
+                 "--pixel-scale", "0.02"]) == 0
+    t15 = Dataset(tmp_path / "p").scene("TRAF15_gt")
+    assert t15.meta["units_per_m"] == pytest.approx(50.0) and (t15.agent_type == AgentType.PEDESTRIAN).any()
+    assert "TRAF15" not in capsys.readouterr().err  # labelled, scaled: nothing to warn about
+    # Bad options: one line, nothing written.
+    for bad, msg in ((["--image-size", "12x"], "expected WIDTHxHEIGHT"),
+                     (["--type-default", "tram"], "unknown agent type"),
+                     (["--pixel-scale", "-1"], "positive metres per pixel"), (["--fps", "0"], "positive frame rate")):
+        assert main(["import", "traf", str(src), "--out", str(tmp_path / "bad"), *bad]) == 2
+        assert msg in capsys.readouterr().err and not (tmp_path / "bad").exists()
+    assert main(["import", "eth-ucy", str(DATA / "eth_ucy"), "--out", str(tmp_path / "bad"), "--fps", "5"]) == 2
+    assert "option of `import traf`" in capsys.readouterr().err
+
+
+def test_traf_image_size_from_the_data():
+    """The frame size is the smallest common video size holding the boxes (TRAF11 runs 7 px off its 1280 edge)."""
+    sizes = {name: im.import_traf([DATA / "traf" / f"{name}_gt.txt"])[0].meta["image_size"]
+             for name in ("TRAF11", "TRAF18", "TRAF25", "TRAF37")}
+    assert sizes == {"TRAF11": [1280, 720], "TRAF18": [640, 360], "TRAF25": [640, 480], "TRAF37": [960, 540]}
+
+
+# ---------------------------------------------------------------------- ApolloScape scored from the CLI (issue 14)
+@pytest.fixture(scope="module")
+def apollo(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("apollo") / "apollo"
+    assert main(["import", "apolloscape", str(DATA / "apolloscape"), "--out", str(out)]) == 0
+    return out
+
+
+def test_apolloscape_protocol_windows(apollo):
+    """2 Hz, 3 observed + 3 predicted frames: a 6-frame chunk gives one window, of the agents in all 6 frames."""
+    from simharness.protocols import get_protocol, windows
+
+    p = get_protocol("apolloscape")
+    ds = Dataset(apollo)
+    scene = ds.scene(ds.scene_ids[0])
+    assert scene.dt == 0.5 and p.step(scene.dt) == 1 and (p.history, p.future) == (3, 3)
+    wins = list(windows(scene, p))
+    assert [now for now, _ in wins] == list(range(2, scene.num_frames - 3))
+    now, rows = wins[0]
+    assert scene.valid[rows, now - 2:now + 4].all() and not scene.valid[~np.isin(np.arange(scene.num_agents), rows),
+                                                                        now - 2:now + 4].all(1).any()
+
+
+def test_apolloscape_train_evaluate_benchmark(apollo, tmp_path):
+    """train / evaluate / benchmark --protocol apolloscape: 3 + 3 frames at 2 Hz end to end on the real sample."""
+    from simharness.benchmark import benchmark
+
+    run = tmp_path / "run"
+    assert main(["train", "--data", str(apollo), "--protocol", "apolloscape", "--epochs", "1", "--warmup-epochs", "1",
+                 "--out", str(run)]) == 0
+    cfg = json.loads((run / "config.json").read_text())
+    assert (cfg["frames"]["history"], cfg["frames"]["future"], cfg["window"]["hz"]) == (3, 3, 2.0)
+    for model in (str(run), "const-vel"):
+        assert main(["evaluate", "--data", str(apollo), "--model", model, "--protocol", "apolloscape",
+                     "--out", str(tmp_path / Path(model).name)]) == 0
+    t, cv = _metrics(tmp_path / "run"), _metrics(tmp_path / "const-vel")
+    assert t["samples"] == cv["samples"] > 20 and t["units"] == "m" and len(t["rmse_per_second"]) == 1
+    assert t["protocol"]["name"] == "apolloscape" and math.isfinite(t["ade"]) and t["fde"] > 0
+    res = benchmark(apollo, "quick", tmp_path / "bench", workers=1, methods=("traphic",), progress=False,
+                    protocol="apolloscape")
+    assert res["protocol"] == "apolloscape" and res["methods"]["traphic"]["metrics"]["samples"] == cv["samples"]
+    assert "1.5 s history, 1.5 s future, 2 Hz" in (tmp_path / "bench" / "results.md").read_text()
+    assert main(["benchmark", "--data", str(apollo), "--protocol", "nope", "--out", str(tmp_path / "b2")]) == 2
+
+
+# ---------------------------------------------------------------------- ETH/UCY validation on *_val files (issue 14)
+def _sgan_layout(root: Path) -> Path:
+    """A Social-GAN style leave-one-out folder from the real samples: zara01 held out (test/), hotel cut in time
+    into its _train (first 80% of lines) and _val files, as the benchmark's own files are."""
+    lines = (DATA / "eth_ucy" / "biwi_hotel.txt").read_text().splitlines(keepends=True)
+    cut = int(len(lines) * 0.8)
+    for sub, name, text in (("train", "biwi_hotel_train.txt", lines[:cut]), ("val", "biwi_hotel_val.txt", lines[cut:]),
+                            ("test", "crowds_zara01.txt", (DATA / "eth_ucy" / "crowds_zara01.txt").read_text())):
+        (root / sub).mkdir(parents=True, exist_ok=True)
+        (root / sub / name).write_text("".join(text))
+    return root
+
+
+def test_split_uses_the_data_sets_own_val_files():
+    ids = ["biwi_eth", "biwi_hotel_train", "biwi_hotel_val", "crowds_zara01_train", "crowds_zara01_val"]
+    assert split_scenes(ids) == {"test": ["biwi_eth"], "train": ["biwi_hotel_train", "crowds_zara01_train"],
+                                 "val": ["biwi_hotel_val", "crowds_zara01_val"]}
+    # Every file of all five scenes: holding out hotel drops its _train / _val parts too.
+    five = ["biwi_eth", "biwi_hotel", "crowds_zara01", "crowds_zara02", "students003"]
+    every = five + [f"{s}_{k}" for s in five for k in ("train", "val")]
+    s = split_scenes(every, test_scenes=["hotel"])
+    assert s["test"] == ["biwi_hotel"] and s["val"] == [f"{x}_val" for x in five if x != "biwi_hotel"]
+    assert s["train"] == [f"{x}_train" for x in five if x != "biwi_hotel"]
+    with pytest.raises(UserError, match="leaves no val scene"):
+        split_scenes(["biwi_eth", "biwi_eth_val", "biwi_hotel_train"], test_scenes=["eth"])
+
+
+def test_eth_ucy_training_validates_on_val_files(tmp_path, capsys):
+    src = _sgan_layout(tmp_path / "zara1")
+    data = tmp_path / "data"
+    assert main(["import", "eth-ucy", str(src / "train"), str(src / "val"), str(src / "test"), "--out", str(data)]) == 0
+    run = tmp_path / "run"
+    assert main(["train", "--data", str(data), "--protocol", "eth-ucy", "--epochs", "1", "--warmup-epochs", "1",
+                 "--max-samples", "128", "--out", str(run)]) == 0
+    assert "validation (checkpoint choice) used the training" not in capsys.readouterr().out
+    cfg = json.loads((run / "config.json").read_text())
+    assert cfg["split"] == {"test": ["crowds_zara01"], "train": ["biwi_hotel_train"], "val": ["biwi_hotel_val"]}
+    assert 0 < cfg["train"]["val_samples"] < cfg["train"]["train_samples"] + 4000
+    assert main(["evaluate", "--data", str(data), "--model", str(run), "--protocol", "eth-ucy",
+                 "--out", str(tmp_path / "ev")]) == 0
+    assert _metrics(tmp_path / "ev")["scene_ids"] == ["crowds_zara01"]
+
+
+# ---------------------------------------------------------------------- sim-to-real: train --init (issue 14)
+def test_train_init_fine_tunes_shipped_and_run_weights(datasets, tmp_path, capsys):
+    """--init shipped starts TRAF training from the synthetic-data weights (its first validation is theirs, not a
+    random network's); --init RUN continues a run; another model config is refused in one line."""
+    import torch
+
+    from predictor.predict import ModelPredictor
+
+    traf, common = str(datasets["traf"]), ["--test-scenes", "TRAF12", "--epochs", "1", "--warmup-epochs", "1",
+                                            "--max-samples", "64", "--no-residual"]
+    tuned, scratch = tmp_path / "tuned", tmp_path / "scratch"
+    assert main(["train", "--data", traf, *common, "--init", "shipped", "--out", str(tuned)]) == 0
+    assert main(["train", "--data", traf, *common, "--out", str(scratch)]) == 0
+    cfg = json.loads((tuned / "config.json").read_text())
+    shipped = ModelPredictor.shipped("traphic").model.state_dict()
+    assert cfg["train"]["init"]["from"] == "shipped" and len(cfg["train"]["init"]["weights_sha256"]) == 64
+    # One epoch of 64 windows moves the weights a little from the shipped ones, far less than a fresh network.
+    after = ModelPredictor.from_run(tuned).model.state_dict()
+    fresh = ModelPredictor.from_run(scratch).model.state_dict()
+    moved = sum(float((after[k] - shipped[k]).abs().sum()) for k in shipped)
+    apart = sum(float((fresh[k] - shipped[k]).abs().sum()) for k in shipped)
+    assert 0 < moved < apart / 10 and all(torch.isfinite(v).all() for v in after.values())
+    assert main(["train", "--data", traf, *common, "--init", str(tuned), "--out", str(tmp_path / "again")]) == 0
+    assert json.loads((tmp_path / "again" / "config.json").read_text())["train"]["init"]["from"] == str(tuned)
+    capsys.readouterr()
+    # The residual form (the default) is another network than the shipped paper-form weights.
+    assert main(["train", "--data", traf, *common[:-1], "--init", "shipped", "--out", str(tmp_path / "bad")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "--init shipped: its model config differs" in err
+    assert "residual False vs True" in err
+    assert main(["train", "--data", traf, *common, "--model", "cs-lstm", "--init", str(tuned),
+                 "--out", str(tmp_path / "bad2")]) == 2
+    assert "model 'traphic' vs 'cs-lstm'" in capsys.readouterr().err
+    assert main(["train", "--data", traf, *common, "--init", str(tmp_path / "nope"),
+                 "--out", str(tmp_path / "b3")]) == 2
+    assert "not a run folder" in capsys.readouterr().err

@@ -318,8 +318,11 @@ def import_eth_ucy(paths: Sequence[PathLike]) -> list[Scene]:
 
 
 # ====================================================================== TRAF
-TRAF_DT = 1.0 / 20.0
-TRAF_IMAGE_SIZE = (1280, 720)
+TRAF_FPS = 20.0  # the data set's notes; the files carry no rate (`import traf --fps` for other videos)
+TRAF_DT = 1.0 / TRAF_FPS
+# Video frame sizes to snap a file's box extent to (boxes run a few pixels off the frame edge).
+TRAF_FRAME_SIZES = ((640, 360), (640, 480), (960, 540), (1280, 720), (1920, 1080), (2560, 1440), (3840, 2160))
+TRAF_EDGE_TOLERANCE = 0.02
 # Class from the id's letters; the annotators' spellings as found in the files, typos included.
 TRAF_CLASSES: dict[str, AgentType] = {
     "car": AgentType.CAR, "taxi": AgentType.CAR, "jeep": AgentType.CAR, "van": AgentType.CAR,
@@ -332,7 +335,7 @@ TRAF_CLASSES: dict[str, AgentType] = {
     "scooty": AgentType.SCOOTER,
     "cycle": AgentType.BICYCLE, "bicycle": AgentType.BICYCLE, "cylce": AgentType.BICYCLE,
     "ped": AgentType.PEDESTRIAN, "man": AgentType.PEDESTRIAN, "woman": AgentType.PEDESTRIAN,
-    "person": AgentType.PEDESTRIAN, "pedestrian": AgentType.PEDESTRIAN,
+    "person": AgentType.PEDESTRIAN, "pedestrian": AgentType.PEDESTRIAN, "human": AgentType.PEDESTRIAN,
     "others": AgentType.OTHER, "other": AgentType.OTHER, "animal": AgentType.OTHER,
 }
 TRAF_UNLABELLED = {"null", "none", ""}
@@ -350,6 +353,16 @@ def traf_pixels_per_metre(scene: Scene) -> float | None:
     scene.length holds each agent's median image-box width in pixels."""
     cars = scene.agent_type == AgentType.CAR
     return round(float(np.median(scene.length[cars])) / TRAF_CAR_WIDTH_M, 2) if cars.any() else None
+
+
+def traf_image_size(box: np.ndarray) -> tuple[int, int]:
+    """(width, height) px of the video from its boxes (R, 4: x, y, w, h): the smallest common frame size
+    holding every box but for a 2% edge overrun, else the boxes' extent itself."""
+    w, h = float((box[:, 0] + box[:, 2]).max()), float((box[:, 1] + box[:, 3]).max())
+    for fw, fh in TRAF_FRAME_SIZES:
+        if w <= fw * (1 + TRAF_EDGE_TOLERANCE) and h <= fh * (1 + TRAF_EDGE_TOLERANCE):
+            return fw, fh
+    return int(math.ceil(w)), int(math.ceil(h))
 
 
 def traf_class(agent_id: str) -> AgentType | None:
@@ -395,20 +408,30 @@ def _traf_rows(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarr
     return np.concatenate(frames), np.concatenate(line_of), np.concatenate(boxes), np.concatenate(ids)
 
 
-def import_traf(paths: Sequence[PathLike]) -> list[Scene]:
+def import_traf(paths: Sequence[PathLike], type_default: str | None = None, pixel_scale: float | None = None,
+                fps: float | None = None, image_size: tuple[int, int] | None = None) -> list[Scene]:
     """TRAF ground-truth files (one line per frame: frame, n, then n x (x, y, w, h, id)), one scene per video.
 
-    Units are image pixels of the 1280x720 front-view video (x right, y down; no homography is
-    published), 20 fps. x, y is a box's top-left corner: the agent is its centre. The class is the
-    id's letters (`TRAF_CLASSES`, typos included); unlabelled boxes ("null") are dropped and
-    counted in `meta["dropped_unlabelled"]`, as are second boxes of one id in one frame
-    (`meta["dropped_duplicates"]`, 27 in TRAF12); unknown classes become OTHER, counted in
-    `meta["unknown_classes"]`. length, width: the median box width and height (pixels, the image
-    box, not a ground footprint); the box per frame is kept in `extra["box_w"]`, `extra["box_h"]`.
-    `meta["units_per_m"]`: a rough pixels-per-metre estimate from the cars' boxes (`traf_pixels_per_metre`),
-    so that predictors with regions in metres can size them; errors stay in pixels (evaluation uses it only
-    for thresholds: the 2 m miss distance and the density radius).
+    Units are image pixels of the front-view video (x right, y down; no homography is published).
+    x, y is a box's top-left corner: the agent is its centre. The class is the id's letters
+    (`TRAF_CLASSES`, typos included); unlabelled boxes ("null") are dropped and counted in
+    `meta["dropped_unlabelled"]`, as are second boxes of one id in one frame (`meta["dropped_duplicates"]`,
+    27 in TRAF12); unknown classes become OTHER, counted in `meta["unknown_classes"]`. Ids that are bare
+    numbers (no class in the file) get `type_default` (a label, e.g. "car"; else OTHER), and the scene's
+    `meta["warnings"]` says so. length, width: the median box width and height (pixels, the image box, not
+    a ground footprint); the box per frame is kept in `extra["box_w"]`, `extra["box_h"]`.
+    `meta["units_per_m"]`: pixels per metre, estimated from the cars' boxes (`traf_pixels_per_metre`; cars
+    typed by `type_default` count) so that predictors with regions in metres can size them; a video without
+    cars takes `pixel_scale` (metres per pixel) when given, else has none and a warning. Errors stay in
+    pixels (evaluation uses the scale only for thresholds: the 2 m miss distance and the density radius).
+    fps: frames per second (the files carry none; 20 per the data set's notes). image_size: (width, height)
+    px, else from the boxes (`traf_image_size`).
     """
+    if fps is not None and not (math.isfinite(fps) and fps > 0):
+        raise UserError(f"--fps {fps}: expected a positive frame rate")
+    if pixel_scale is not None and not (math.isfinite(pixel_scale) and pixel_scale > 0):
+        raise UserError(f"--pixel-scale {pixel_scale}: expected positive metres per pixel, e.g. 0.02")
+    default = AgentType.OTHER if type_default is None else AgentType.parse(type_default)
     scenes = []
     for p in paths:
         path = _check_file(p)
@@ -417,21 +440,39 @@ def import_traf(paths: Sequence[PathLike]) -> list[Scene]:
         dropped = int((~keep).sum())
         frame, lines, box, ids = frame[keep], lines[keep], box[keep], ids[keep]
         uniq, inverse = np.unique(ids, return_inverse=True)
-        classes = [traf_class(u) for u in uniq]
+        bare = np.array([re.fullmatch(r"[-+]?\d+", u) is not None for u in uniq], bool)
+        classes = [default if b else traf_class(u) for u, b in zip(uniq, bare, strict=True)]
         unknown = {u: int((inverse == k).sum()) for k, u in enumerate(uniq) if classes[k] is None}
         codes = np.array([AgentType.OTHER if c is None else c for c in classes], np.int8)
         centre = box[:, :2] + box[:, 2:4] / 2
-        meta = _source_meta(path, "traf", path.stem, units="px", image_size=list(TRAF_IMAGE_SIZE),
+        size = image_size or traf_image_size(box)
+        warnings = []
+        if bare.any():
+            how = f"typed {default.label} (--type-default)" if type_default else \
+                "typed other; give --type-default TYPE"
+            warnings.append(f"{path.name}: {int(bare.sum())} of {len(uniq)} ids carry no class (bare numbers): {how}")
+        meta = _source_meta(path, "traf", path.stem, units="px", image_size=list(size),
+                            image_size_source="given" if image_size else "from the boxes' extent",
                             axes="image pixels: x right, y down", dropped_unlabelled=dropped,
-                            unknown_classes=unknown)
+                            unknown_classes=unknown, untyped_ids=int(bare.sum()),
+                            frame_rate_source="given" if fps else "TRAF's 20 fps (data set notes)")
         scene = scene_from_rows(
-            frame, ids, centre, dt=TRAF_DT, agent_type=codes[inverse], size=box[:, 2:4],
+            frame, ids, centre, dt=1.0 / (fps or TRAF_FPS), agent_type=codes[inverse], size=box[:, 2:4],
             extra={"box_w": box[:, 2], "box_h": box[:, 3]}, where=_where(path, lines), meta=meta,
             duplicates="first",
         )
         scale = traf_pixels_per_metre(scene)
-        scenes.append(scene if scale is None else
-                      scene.replace(meta={**scene.meta, "units_per_m": scale, "units_per_m_note": TRAF_SCALE_NOTE}))
+        if scale is not None:
+            scale_meta = {"units_per_m": scale, "units_per_m_note": TRAF_SCALE_NOTE}
+        elif pixel_scale is not None:
+            scale_meta = {"units_per_m": round(1.0 / pixel_scale, 4),
+                          "units_per_m_note": f"given: --pixel-scale {pixel_scale:g} m/px (no cars to estimate it)"}
+        else:
+            scale_meta = {}
+            warnings.append(f"{path.name}: no cars to estimate a pixel scale from; give --pixel-scale M_PER_PX "
+                            "(or --type-default car) to train or evaluate on it")
+        warnings[1:] = [w.removeprefix(f"{path.name}: ") for w in warnings[1:]]
+        scenes.append(scene.replace(meta={**scene.meta, **scale_meta, "warnings": warnings}))
     return scenes
 
 
@@ -801,14 +842,16 @@ def source_files(fmt: str, sources: Sequence[PathLike]) -> list[Path]:
     return files
 
 
-def import_scenes(fmt: str, files: Sequence[PathLike], allow_pickle: bool = False) -> Iterator[Scene]:
-    """Scenes of `files` in `fmt`, file by file; scene ids made unique across files."""
+def import_scenes(fmt: str, files: Sequence[PathLike], allow_pickle: bool = False,
+                  options: dict[str, Any] | None = None) -> Iterator[Scene]:
+    """Scenes of `files` in `fmt`, file by file; scene ids made unique across files.
+    options: the format's own keyword arguments (`import_traf`: type_default, pixel_scale, fps, image_size)."""
     fn = IMPORTERS[format_name(fmt)][0]
     seen: dict[str, Path] = {}
     for f in files:
         kwargs = {"allow_pickle": allow_pickle} if fn is import_tracknpred else {}
         try:
-            scenes = fn([f], **kwargs)
+            scenes = fn([f], **kwargs, **(options or {}))
         except UserError:
             raise
         except Exception as e:  # safety net: a source we did not foresee is still one line naming the file
@@ -822,6 +865,20 @@ def import_scenes(fmt: str, files: Sequence[PathLike], allow_pickle: bool = Fals
             yield scene
 
 
+def traf_options(args: argparse.Namespace) -> dict[str, Any]:
+    """The `import traf` options the user gave (--type-default, --pixel-scale, --fps, --image-size WxH)."""
+    options = {k: getattr(args, k, None) for k in ("type_default", "pixel_scale", "fps", "image_size")}
+    options = {k: v for k, v in options.items() if v is not None}
+    if "image_size" in options:
+        m = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", str(options["image_size"]))
+        if not m or min(int(m[1]), int(m[2])) < 1:
+            raise UserError(f"--image-size {options['image_size']!r}: expected WIDTHxHEIGHT in pixels, e.g. 1280x720")
+        options["image_size"] = (int(m[1]), int(m[2]))
+    if "type_default" in options:
+        AgentType.parse(options["type_default"])  # one line naming the choices, before any file is read
+    return options
+
+
 def import_command(args: argparse.Namespace) -> int:
     """`simharness import FORMAT SRC... --out DIR [--allow-pickle]`: write a data set, print a summary."""
     from tqdm import tqdm
@@ -829,13 +886,18 @@ def import_command(args: argparse.Namespace) -> int:
     from simharness.io.parquet import write_dataset
 
     fmt = format_name(args.format)
+    options = traf_options(args)
+    if options and fmt != "traf":
+        raise UserError(f"--{next(iter(options)).replace('_', '-')} is an option of `import traf`, not of {fmt}")
     files = source_files(fmt, args.src)
     summary: dict[str, Any] = {"scenes": 0, "agents": 0, "agent_frames": 0, "frames": 0, "units": set(),
                                "rate": set(), "types": {}}
 
     def scenes() -> Iterator[Scene]:
         for scene in import_scenes(fmt, tqdm(files, desc=f"import {fmt}", unit="file", file=sys.stderr),
-                                   allow_pickle=args.allow_pickle):
+                                   allow_pickle=args.allow_pickle, options=options):
+            if scene.meta.get("warnings"):  # one line per file
+                tqdm.write(f"simharness: warning: {'; '.join(scene.meta['warnings'])}", file=sys.stderr)
             summary["scenes"] += 1
             summary["agents"] += scene.num_agents
             summary["agent_frames"] += int(scene.valid.sum())
