@@ -286,6 +286,9 @@ def test_cli_refuses_non_finite_numbers_and_leaves_nothing(tiny, tmp_path: Path,
     spec = load_scenario(scenario)
     with pytest.raises(UserError, match="duration"):
         spec.with_overrides({"duration": float("nan")})
+    assert main(["sweep", str(scenario), "--set", "demand_scale=nan", "--out", str(tmp_path / "sw")]) == 2
+    assert "key 'demand_scale': expected a finite number, got nan" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_checkpoint_with_nan_weights_is_one_line_and_writes_nothing(tmp_path: Path, capsys) -> None:
