@@ -181,7 +181,7 @@ def test_two_generates_into_one_folder_end_with_every_shard_listed(tiny, tmp_pat
              for seeds in ("0-2", "3-4")]
     results = [p.communicate(timeout=300) for p in procs]
     assert [p.returncode for p in procs] == [0, 0], results
-    assert any("waiting for another writer" in err for _, err in results)  # the second one waited its turn
+    # (whether the second waited depends on timing; the lock itself is tested below)
     ds = Dataset(out)
     assert ds.scene_ids == [f"scene-{s:06d}" for s in range(5)] and ds.info["seeds"] == [0, 1, 2, 3, 4]
     assert not list(out.glob(".tmp-*"))
