@@ -83,7 +83,7 @@ def run_demo(args: argparse.Namespace) -> int:
         "![forecasts](openloop/traphic/forecasts.png)\n"))
     print(f"      report: {report}")
     print("\nwhere things are:")
-    print(f"  data set     {data}  (manifest.json + one Parquet shard per scene; runs.jsonl logs each run)")
+    print(f"  data set     {data}  (_manifest.json + one Parquet shard per scene; _runs.jsonl logs each run)")
     print(f"  stats        {out / 'stats.json'}  (also: simharness stats {data})")
     print(f"  figure       {figure}")
     print(f"  open loop    {out / 'openloop'}  (metrics.json, rmse_curve.png, forecasts.png per predictor)")
