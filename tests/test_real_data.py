@@ -182,8 +182,8 @@ def test_apolloscape_train_evaluate_benchmark(apollo, tmp_path):
     assert (cfg["frames"]["history"], cfg["frames"]["future"], cfg["window"]["hz"]) == (3, 3, 2.0)
     for model in (str(run), "const-vel"):
         assert main(["evaluate", "--data", str(apollo), "--model", model, "--protocol", "apolloscape",
-                     "--out", str(tmp_path / Path(model).name)]) == 0
-    t, cv = _metrics(tmp_path / "run"), _metrics(tmp_path / "const-vel")
+                     "--out", str(tmp_path / "eval" / Path(model).name)]) == 0
+    t, cv = _metrics(tmp_path / "eval" / "run"), _metrics(tmp_path / "eval" / "const-vel")
     assert t["samples"] == cv["samples"] > 20 and t["units"] == "m" and len(t["rmse_per_second"]) == 1
     assert t["protocol"]["name"] == "apolloscape" and math.isfinite(t["ade"]) and t["fde"] > 0
     res = benchmark(apollo, "quick", tmp_path / "bench", workers=1, methods=("traphic",), progress=False,
