@@ -151,18 +151,7 @@ class DenseTrafficEnv(gym.Env):
 
     def command(self, action: np.ndarray) -> EgoCommand:
         """Normalised action (2,) -> physical `EgoCommand`: clipped to [-1, 1]; NaN or inf raise ValueError."""
-        c = self.config
-        a = np.asarray(action, np.float64)
-        if a.size != 2:
-            raise ValueError(f"{type(self).__name__}: action of shape {a.shape}: expected 2 values "
-                             "(acceleration, lateral speed) in [-1, 1]")
-        a = a.reshape(2)
-        if not np.isfinite(a).all():
-            raise ValueError(f"{type(self).__name__}: action {a.tolist()} is not finite; expected 2 values in "
-                             "[-1, 1] (larger values are clipped, NaN and inf are refused)")
-        a = np.clip(a, -1.0, 1.0)
-        acc = a[0] * (c["max_accel"] if a[0] >= 0 else c["max_decel"])
-        return EgoCommand(float(acc), float(a[1] * c["max_lateral_speed"]))
+        return action_to_command(action, self.config, type(self).__name__)
 
     def render(self) -> np.ndarray | None:
         if self.render_mode != "rgb_array":
@@ -211,6 +200,21 @@ class DenseTrafficEnv(gym.Env):
         fc[: near.size, : rel.shape[1], 0] = 1.0
         fc[: near.size, : rel.shape[1], 1:] = np.clip(rel, -1.0, 1.0)
         return fc
+
+
+def action_to_command(action: np.ndarray, config: dict[str, Any], where: str = "env") -> EgoCommand:
+    """Normalised action (2,) -> `EgoCommand` (m/s^2, m/s) under `config`'s limits; see the package doc."""
+    a = np.asarray(action, np.float64)
+    if a.size != 2:
+        raise ValueError(f"{where}: action of shape {a.shape}: expected 2 values (acceleration, lateral speed) "
+                         "in [-1, 1]")
+    a = a.reshape(2)
+    if not np.isfinite(a).all():
+        raise ValueError(f"{where}: action {a.tolist()} is not finite; expected 2 values in [-1, 1] (larger "
+                         "values are clipped, NaN and inf are refused)")
+    a = np.clip(a, -1.0, 1.0)
+    acc = a[0] * (config["max_accel"] if a[0] >= 0 else config["max_decel"])
+    return EgoCommand(float(acc), float(a[1] * config["max_lateral_speed"]))
 
 
 class SumoDenseEnv(DenseTrafficEnv):
