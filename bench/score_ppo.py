@@ -4,9 +4,11 @@ On `highway_mixed_dense` (the scenario the policy was trained on), the same seed
 the shipped PPO policy driving through `PolicyPlanner`, and the sampling planner fed TraPHic,
 constant velocity and the oracle (on highway the oracle steps a copy of the live simulator: exact
 futures). Scored by `simharness.closedloop.score_episode` from the recorded Scene, mean [95% bootstrap
-CI] by `aggregate`; writes the table and the per-ego aggregates to --out.
+CI] by `aggregate`; writes each ego's aggregate (--out/EGO.json) and the table of all egos scored
+there on the same seeds and duration (--out/scorecard.txt).
 
-Usage: python bench/score_ppo.py [--seeds 0-9] [--duration 30] [--policy simharness/policies/ppo_highway_dense.zip]
+Usage: python bench/score_ppo.py [--seeds 0-9] [--duration 30] [--egos ppo,traphic,const-vel,oracle]
+                                 [--policy simharness/policies/ppo_highway_dense.zip] [--out runs/bench/score_ppo]
 """
 
 from __future__ import annotations
@@ -55,7 +57,7 @@ def main() -> None:
     p.add_argument("--seeds", default="0-9")
     p.add_argument("--duration", type=float, default=30.0)
     p.add_argument("--policy", type=Path, default=SHIPPED)
-    p.add_argument("--egos", default=",".join(EGOS))
+    p.add_argument("--egos", default=",".join(("ppo", *EGOS)), help="comma list of ppo, traphic, const-vel, oracle")
     p.add_argument("--out", type=Path, default=Path("runs/bench/score_ppo"))
     a = p.parse_args()
     lo, _, hi = a.seeds.partition("-")
@@ -63,20 +65,27 @@ def main() -> None:
     spec = prepare_spec(load_scenario("highway_mixed_dense").with_overrides({"duration": a.duration}))
     config = LoopConfig()
     a.out.mkdir(parents=True, exist_ok=True)
-    results = {}
     t0 = time.time()
-    results["ppo"] = aggregate([policy_episode(spec, s, a.policy, config) for s in seeds])
-    print(f"ppo done {time.time() - t0:.0f} s", flush=True)
-    for ego in [e for e in a.egos.split(",") if e]:
-        eps = [run_episode(EpisodeJob(spec, s, ego, config, keep_scene=False))["scores"] for s in seeds]
-        results[ego] = aggregate(eps)
+    egos = [e for e in a.egos.split(",") if e]
+    for ego in egos:  # each ego's aggregate lands in its own file, so egos can be scored in separate runs
+        if ego == "ppo":
+            eps = [policy_episode(spec, s, a.policy, config) for s in seeds]
+        else:
+            eps = [run_episode(EpisodeJob(spec, s, ego, config, keep_scene=False))["scores"] for s in seeds]
+        (a.out / f"{ego}.json").write_text(json.dumps({"spec": spec.name, "duration": a.duration, "seeds": seeds,
+                                                       "policy": str(a.policy) if ego == "ppo" else None,
+                                                       "scores": aggregate(eps)}, default=float) + "\n")
         print(f"{ego} done {time.time() - t0:.0f} s", flush=True)
+    results = {}
+    for ego in ("ppo", *EGOS):
+        f = a.out / f"{ego}.json"
+        if f.is_file():
+            got = json.loads(f.read_text())
+            if got["seeds"] == seeds and got["duration"] == a.duration:
+                results[ego] = got["scores"]
     table = scorecard_table(results)
     print(table)
     (a.out / "scorecard.txt").write_text(table + "\n")
-    (a.out / "scores.json").write_text(json.dumps({"spec": spec.name, "duration": a.duration, "seeds": seeds,
-                                                   "policy": str(a.policy), "egos": results}, indent=1,
-                                                  default=float) + "\n")
 
 
 if __name__ == "__main__":
