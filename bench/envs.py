@@ -1,11 +1,15 @@
 """Gym env speed against its backend, measured in one run (issue 12).
 
-For each env (HighwayDense-v0, SumoDense-v0): env-steps per second of one env driven by a random policy
-(rendering off, one core, resets included in the time, as a training loop sees it), and the raw frames
-per second of the same backend and scenario stepped directly (`Simulator.step` with a constant ego
-command, no observation or reward), so the share `env / raw` says what the env layer costs.
+For each env (HighwayDense-v0, SumoDense-v0, default config): env-steps per second of one env driven
+by a seeded random policy (rendering off, one core, resets included in the time, as a training loop
+sees them), and the raw frames per second of the same backend and scenario in this process stepped
+directly (`Simulator.step` with a constant ego command: no observation, reward or worker process), so
+the share `raw time / env time` says what the env layer costs. Rates are per CPU-second (this process
+plus the env's SUMO worker: a shared machine's load does not count; wall-clock rates are in the JSON),
+and the loops run interleaved in chunks so the rest of a busy machine affects them alike. Also the env
+with ``episodes_per_warmup = 1`` (every reset warms the traffic up from empty, as before warm resets).
 
-Usage: python bench/envs.py [--steps 600] [--old REV]
+Usage: python bench/envs.py [--steps 1000] [--rounds 5] [--env ID] [--old REV]
   --old REV  also measure the env of git revision REV (checked out into a temporary worktree, run in a
              subprocess) for a before/after table.
 """
@@ -24,68 +28,106 @@ from pathlib import Path
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 
-ENVS = {"HighwayDense-v0": {"warmup": 10.0}, "SumoDense-v0": {"warmup": 30.0}}
+ENVS = ("HighwayDense-v0", "SumoDense-v0")
 
 
-def env_rate(env_id: str, config: dict, steps: int, seed: int = 0) -> float:
-    """Env-steps per second of `env_id` under a seeded random policy (resets counted in the time)."""
-    import gymnasium as gym
+class EnvLoop:
+    """One env under a seeded random policy; `run(n)` steps it n times (resets included) and returns seconds."""
 
-    import simharness.envs  # noqa: F401 - registers the ids
+    def __init__(self, env_id: str, config: dict, seed: int = 0) -> None:
+        import gymnasium as gym
 
-    env = gym.make(f"simharness/{env_id}", config=config)
-    env.action_space.seed(seed)
-    env.reset(seed=seed)
-    t0 = time.perf_counter()
-    for _ in range(steps):
-        _, _, term, trunc, _ = env.step(env.action_space.sample())
-        if term or trunc:
-            env.reset()
-    rate = steps / (time.perf_counter() - t0)
-    env.close()
-    return rate
+        import simharness.envs  # noqa: F401 - registers the ids
 
+        self.env = gym.make(f"simharness/{env_id}", config=config)
+        self.env.action_space.seed(seed)
+        self.env.reset(seed=seed)
+        self.resets = 0
 
-def raw_rate(env_id: str, config: dict, steps: int, seed: int = 0) -> float:
-    """Frames per second of the env's own backend and scenario, stepped directly with a constant ego command."""
-    import gymnasium as gym
-
-    import simharness.envs  # noqa: F401
-    from simharness.sim import EgoCommand, make_simulator
-
-    env = gym.make(f"simharness/{env_id}", config=config)
-    spec = env.unwrapped.spec_.with_overrides({"duration": 3600.0})
-    env.close()
-    sim = make_simulator(spec)
-    sim.reset(seed)
-    command = EgoCommand(0.0, 0.0)
-    t0 = time.perf_counter()
-    for _ in range(steps):
-        sim.step(command)
-    rate = steps / (time.perf_counter() - t0)
-    sim.close()
-    return rate
+    def run(self, n: int) -> tuple[float, float]:
+        w0, c0 = time.perf_counter(), cpu_seconds(self.env)
+        for _ in range(n):
+            _, _, term, trunc, _ = self.env.step(self.env.action_space.sample())
+            if term or trunc:
+                self.env.reset()
+                self.resets += 1
+        return time.perf_counter() - w0, cpu_seconds(self.env) - c0
 
 
-def measure(steps: int) -> dict[str, dict[str, float]]:
+class RawLoop:
+    """The env's own backend and scenario in this process, stepped directly with a constant ego command."""
+
+    def __init__(self, env_id: str, seed: int = 0) -> None:
+        import gymnasium as gym
+
+        import simharness.envs  # noqa: F401
+        from simharness.sim import EgoCommand, make_simulator
+
+        env = gym.make(f"simharness/{env_id}")
+        spec = env.unwrapped.spec_.with_overrides({"duration": 3600.0})
+        env.close()
+        self.sim = make_simulator(spec)
+        self.sim.reset(seed)
+        self.command = EgoCommand(0.0, 0.0)
+
+    def run(self, n: int) -> tuple[float, float]:
+        w0, c0 = time.perf_counter(), time.process_time()
+        for _ in range(n):
+            self.sim.step(self.command)
+        return time.perf_counter() - w0, time.process_time() - c0
+
+
+def cpu_seconds(env: object = None) -> float:
+    """CPU seconds of this process plus, for an env whose simulator runs in a worker, that worker's."""
+    total = time.process_time()
+    pid = getattr(getattr(getattr(env, "unwrapped", None), "_sim", None), "_pid", None)
+    if pid:
+        with open(f"/proc/{pid}/stat") as f:
+            fields = f.read().rsplit(")", 1)[1].split()
+        total += (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")  # utime + stime
+    return total
+
+
+def measure(steps: int, rounds: int, env_ids: tuple[str, ...] = ENVS, variants: bool = True) -> dict:
+    """Env and raw loops interleaved in `rounds` chunks (a loaded machine slows both alike); rates over all."""
     out = {}
-    for env_id, cfg in ENVS.items():
-        raw = raw_rate(env_id, cfg, steps)
-        env = env_rate(env_id, cfg, steps)
-        out[env_id] = {"env_steps_per_s": env, "raw_frames_per_s": raw, "share_of_raw": env / raw}
+    for env_id in env_ids:
+        loops = {"env": EnvLoop(env_id, {})}
+        if variants:  # every reset warms the traffic up afresh (the behaviour before warm resets)
+            loops["env_cold_resets"] = EnvLoop(env_id, {"episodes_per_warmup": 1})
+        raw = RawLoop(env_id)
+        wall = dict.fromkeys([*loops, "raw"], 0.0)
+        cpu = dict(wall)
+        chunk = max(1, steps // rounds)
+        for _ in range(rounds):
+            for k, loop in (("raw", raw), *loops.items()):
+                w, c = loop.run(chunk)
+                wall[k] += w
+                cpu[k] += c
+        n = chunk * rounds
+        rec = {"raw_frames_per_s": n / cpu["raw"], "raw_frames_per_wall_s": n / wall["raw"]}
+        for k in loops:
+            rec[f"{k}_steps_per_s"] = n / cpu[k]
+            rec[f"{k}_steps_per_wall_s"] = n / wall[k]
+            rec[f"{k}_share_of_raw"] = cpu["raw"] / cpu[k]
+            rec[f"{k}_resets"] = loops[k].resets
+        out[env_id] = rec
+        raw.sim.close()
+        for loop in loops.values():
+            loop.env.close()
     return out
 
 
 def measure_old(rev: str, steps: int) -> dict[str, float]:
-    """Env-steps/s of revision `rev` (its own simharness, this script's env loop) in a subprocess."""
+    """Env-steps/s of revision `rev` (its own simharness, default config) in a subprocess."""
     root = Path(__file__).resolve().parents[1]
     with tempfile.TemporaryDirectory(prefix="simharness_old_") as tmp:
         wt = Path(tmp) / "wt"
         subprocess.run(["git", "-C", str(root), "worktree", "add", "--detach", str(wt), rev], check=True,
                        capture_output=True)
         try:
-            code = ("import json, sys; sys.path.insert(0, sys.argv[1]); from envs_bench import env_rate, ENVS; "
-                    f"print(json.dumps({{k: env_rate(k, c, {steps}) for k, c in ENVS.items()}}))")
+            code = ("import json, sys; sys.path.insert(0, sys.argv[1]); from envs_bench import EnvLoop, ENVS; "
+                    f"print(json.dumps({{k: {steps} / EnvLoop(k, {{}}).run({steps})[1] for k in ENVS}}))")
             (Path(tmp) / "envs_bench.py").write_text(Path(__file__).read_text())
             env = {**os.environ, "PYTHONPATH": str(wt)}
             proc = subprocess.run([sys.executable, "-c", code, tmp], capture_output=True, text=True, env=env,
@@ -97,19 +139,23 @@ def measure_old(rev: str, steps: int) -> dict[str, float]:
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--steps", type=int, default=600)
+    p.add_argument("--steps", type=int, default=1000, help="env steps (and raw frames) per loop")
+    p.add_argument("--rounds", type=int, default=5, help="interleaved chunks")
     p.add_argument("--old", default=None, help="git revision to compare with")
+    p.add_argument("--env", choices=ENVS, default=None, help="one env only")
     a = p.parse_args()
-    res = measure(a.steps)
+    ids = (a.env,) if a.env else ENVS
+    res = measure(a.steps, a.rounds, ids)
     old = measure_old(a.old, a.steps) if a.old else {}
-    print(f"{'env':18s} {'env-steps/s':>12s} {'raw frames/s':>13s} {'share':>6s}" + (f" {'old env-steps/s':>16s}"
-                                                                                    if old else ""))
+    print(f"{'env':16s} {'raw fr/s':>9s} {'env st/s':>9s} {'share':>6s} {'cold-reset st/s':>16s} {'share':>6s}"
+          + (f" {'old st/s':>9s}" if old else ""))
     for k, r in res.items():
-        line = f"{k:18s} {r['env_steps_per_s']:12.0f} {r['raw_frames_per_s']:13.0f} {r['share_of_raw']:6.0%}"
+        line = (f"{k:16s} {r['raw_frames_per_s']:9.0f} {r['env_steps_per_s']:9.0f} {r['env_share_of_raw']:6.0%} "
+                f"{r['env_cold_resets_steps_per_s']:16.0f} {r['env_cold_resets_share_of_raw']:6.0%}")
         if old:
-            line += f" {old[k]:16.0f}"
+            line += f" {old.get(k, float('nan')):9.0f}"
         print(line)
-    print(json.dumps({"now": res, "old": old}))
+    print(json.dumps({"now": res, "old": old, "steps": a.steps, "rounds": a.rounds}))
 
 
 if __name__ == "__main__":

@@ -136,11 +136,42 @@ def _rollout(env: gym.Env, seed: int, steps: int = 6) -> tuple[np.ndarray, list[
     return np.stack(seen), rewards
 
 
-def test_highway_same_seed_same_rollout():
+def _episodes(env: gym.Env, seed: int, episodes: int = 3) -> tuple[list[np.ndarray], list[float]]:
+    """First observations and summed rewards of consecutive episodes after one seeded reset."""
+    firsts, totals = [], []
+    obs, _ = env.reset(seed=seed)
+    for _ in range(episodes):
+        firsts.append(obs)
+        total, done = 0.0, False
+        while not done:
+            obs, r, term, trunc, _ = env.step(np.array([0.2, 0.0], np.float32))
+            total += r
+            done = term or trunc
+        totals.append(total)
+        obs, _ = env.reset()
+    return firsts, totals
+
+
+def test_highway_same_seed_same_rollout_across_warm_resets():
     a, b = (gym.make("simharness/HighwayDense-v0", config=HW) for _ in range(2))
     (oa, ra), (ob, rb), (oc, _) = _rollout(a, 7), _rollout(b, 7), _rollout(b, 8)
     assert np.array_equal(oa, ob) and ra == rb
     assert not np.array_equal(oa[0], oc[0])
+    # reset() without a seed re-inserts the ego into the running traffic: still a function of the seed.
+    (fa, ta), (fb, tb) = _episodes(a, 9), _episodes(b, 9)
+    assert all(np.array_equal(x, y) for x, y in zip(fa, fb, strict=True)) and ta == tb
+    assert not np.array_equal(fa[0], fa[1])  # a new episode, not a replay
+    sim = a.unwrapped._sim
+    assert sim.env.traffic.time > sim.env.warmup_s > 8.0  # traffic ran on from one warm-up
+
+
+def test_every_reset_warms_up_when_asked():
+    env = gym.make("simharness/HighwayDense-v0", config={**HW, "episodes_per_warmup": 1})
+    env.reset(seed=1)
+    first = env.unwrapped._sim.env.traffic
+    env.reset()
+    assert env.unwrapped._sim.env.traffic is not first  # a fresh warm-up
+    env.close()
 
 
 def test_several_sumo_envs_in_one_process():
@@ -155,6 +186,9 @@ def test_several_sumo_envs_in_one_process():
     assert img.ndim == 3 and len(np.unique(img.reshape(-1, 3)[::37], axis=0)) > 5
     other, _ = _rollout(first, 4, steps=1)
     assert not np.array_equal(other[0], oa[0])
+    # Warm resets in SUMO too: the ego enters the running traffic again, identically for both.
+    (fa, ta), (fb, tb) = _episodes(first, 5, 2), _episodes(second, 5, 2)
+    assert all(np.array_equal(x, y) for x, y in zip(fa, fb, strict=True)) and ta == tb
     first.close()
     second.close()
 

@@ -141,3 +141,29 @@ def test_workers_end_with_their_owner():
     while any(_alive(p) for p in pids) and time.time() < deadline:
         time.sleep(0.1)
     assert not any(_alive(p) for p in pids)
+
+
+def test_restart_ego_in_running_traffic_matches_in_process():
+    """The ego leaves and enters again while traffic runs on; the worker and in-process give the same frames."""
+    def run(sim) -> list[Frame]:
+        frames = _run(sim, 2, 10)
+        frames.append(sim.restart_ego())
+        frames += [sim.step(_command(k)) for k in range(6)]
+        return frames
+
+    proc = SumoProcess(SPEC)
+    try:
+        a = run(proc)
+    finally:
+        proc.close()
+    lone = SumoSimulator(SPEC)
+    try:
+        b = run(lone)
+    finally:
+        lone.close()
+    assert all(_same(x, y) for x, y in zip(a, b, strict=True))
+    restart = a[11]
+    assert restart.t == 0.0 and restart.ego < 0  # out now, back at the next step
+    assert a[12].ego >= 0 and a[-1].ego >= 0 and a[-1].t == pytest.approx(6 * SPEC.dt)
+    # Traffic ran on: most vehicles of the last frame before the restart are still there.
+    assert np.isin(a[10].agent_id, restart.agent_id).mean() > 0.8

@@ -19,6 +19,8 @@ DEFAULT_CONFIG: dict[str, Any] = {
     "reaction": None,  # reactive | cut_in | ignore; None keeps the scenario's
     "duration": 20.0,  # seconds of driving per episode (then truncated)
     "warmup": None,  # override the scenario's warm-up (s); None keeps it
+    "episodes_per_warmup": 20,  # reset() without a seed re-inserts the ego into the running traffic this
+    # many times before warming up afresh (1: every reset warms up; reset(seed=...) always does)
     "num_agents": 16,  # K nearest agents observed
     "history_frames": 5,  # H frames of history per agent
     "obs_range": 60.0,  # m: positions are divided by this; agents farther away are not observed
@@ -32,7 +34,7 @@ DEFAULT_CONFIG: dict[str, Any] = {
 }
 REACTIONS = (None, "reactive", "cut_in", "ignore")
 _POSITIVE = ("duration", "obs_range", "max_accel", "max_decel", "max_lateral_speed")
-_COUNTS = ("num_agents", "history_frames", "forecast_frames")
+_COUNTS = ("num_agents", "history_frames", "forecast_frames", "episodes_per_warmup")
 
 
 def resolve_config(defaults: dict[str, Any], given: dict[str, Any] | None, where: str) -> dict[str, Any]:

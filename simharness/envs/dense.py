@@ -16,6 +16,7 @@ from gymnasium import spaces
 from simharness.envs.config import DEFAULT_CONFIG, resolve_config
 from simharness.envs.observation import FEATURES, History, agents_observation, ego_rotation
 from simharness.envs.reward import GAP_CAP, TTC_CAP, ego_safety, step_reward
+from simharness.errors import SimulatorError
 from simharness.scenario import ScenarioSpec, load_scenario
 from simharness.sim.base import EgoCommand, Frame, scene_from_frames
 
@@ -49,6 +50,7 @@ class DenseTrafficEnv(gym.Env):
         self._predictor = None
         self._history = History(h)
         self._done = True  # no episode yet: step() needs reset()
+        self._episodes_in_sim = 0
 
     @classmethod
     def default_config(cls) -> dict[str, Any]:
@@ -62,8 +64,9 @@ class DenseTrafficEnv(gym.Env):
     def _scenario_spec(self) -> ScenarioSpec:
         c = self.config
         spec = load_scenario(c["scenario"])
+        episode = float(c["duration"]) + (int(c["history_frames"]) + 2) / spec.record_hz
         changes = {**c["overrides"], "ego.enabled": True, "ego.insert_at": 0.0,
-                   "duration": float(c["duration"]) + (int(c["history_frames"]) + 2) / spec.record_hz}
+                   "duration": episode * int(c["episodes_per_warmup"])}
         if c["reaction"] is not None:
             changes["ego.reaction"] = c["reaction"]
         if c["warmup"] is not None:
@@ -78,24 +81,35 @@ class DenseTrafficEnv(gym.Env):
 
         if self._sim is None:
             self._sim = make_simulator(self.spec_, process=self.worker_process)
+            self._episodes_in_sim = int(self.config["episodes_per_warmup"])  # nothing is running yet
         if self.config["predictor"] and self._predictor is None:
             from simharness.predictors import load_predictor
 
             self._predictor = load_predictor(self.config["predictor"])
-        h = int(self.config["history_frames"])
-        sim_seed = int(self.np_random.integers(0, 2**31 - 1 - self.spec_.seed))
-        frame = self._sim.reset(sim_seed)
+        c = self.config
+        h = int(c["history_frames"])
+        frame = None
+        if seed is None and self._episodes_in_sim < int(c["episodes_per_warmup"]):
+            try:  # a warm reset: the same traffic runs on and the ego enters again
+                frame = self._sim.restart_ego()
+            except SimulatorError:
+                frame = None
+        if frame is None:
+            sim_seed = int(self.np_random.integers(0, 2**31 - 1 - self.spec_.seed))
+            frame = self._sim.reset(sim_seed)
+            self._episodes_in_sim = 0
+        self._episodes_in_sim += 1
         self._history.clear()
         self._history.append(frame)
         ego_frames = int(frame.ego >= 0)
-        for _ in range(h + 1):  # let the ego in and build up its history under the simulator's own model
+        for _ in range(h + 50):  # let the ego in and build up its history under the simulator's own model
             if frame.ego >= 0 and ego_frames >= h:
                 break
             frame = self._sim.step(None)
             self._history.append(frame)
-            ego_frames += int(frame.ego >= 0)
-        if frame.ego < 0:
-            raise RuntimeError(f"{self.spec_.name}: the ego was not inserted (seed {sim_seed})")
+            ego_frames = ego_frames + 1 if frame.ego >= 0 else 0
+        if frame.ego < 0 or ego_frames < h:
+            raise SimulatorError(f"{self.spec_.name}: the ego did not enter the road within {h + 50} frames")
         self._steps = 0
         self._prev_acc = 0.0
         self._contact_prev = False
@@ -137,18 +151,7 @@ class DenseTrafficEnv(gym.Env):
 
     def command(self, action: np.ndarray) -> EgoCommand:
         """Normalised action (2,) -> physical `EgoCommand`: clipped to [-1, 1]; NaN or inf raise ValueError."""
-        c = self.config
-        a = np.asarray(action, np.float64)
-        if a.size != 2:
-            raise ValueError(f"{type(self).__name__}: action of shape {a.shape}: expected 2 values "
-                             "(acceleration, lateral speed) in [-1, 1]")
-        a = a.reshape(2)
-        if not np.isfinite(a).all():
-            raise ValueError(f"{type(self).__name__}: action {a.tolist()} is not finite; expected 2 values in "
-                             "[-1, 1] (larger values are clipped, NaN and inf are refused)")
-        a = np.clip(a, -1.0, 1.0)
-        acc = a[0] * (c["max_accel"] if a[0] >= 0 else c["max_decel"])
-        return EgoCommand(float(acc), float(a[1] * c["max_lateral_speed"]))
+        return action_to_command(action, self.config, type(self).__name__)
 
     def render(self) -> np.ndarray | None:
         if self.render_mode != "rgb_array":
@@ -197,6 +200,21 @@ class DenseTrafficEnv(gym.Env):
         fc[: near.size, : rel.shape[1], 0] = 1.0
         fc[: near.size, : rel.shape[1], 1:] = np.clip(rel, -1.0, 1.0)
         return fc
+
+
+def action_to_command(action: np.ndarray, config: dict[str, Any], where: str = "env") -> EgoCommand:
+    """Normalised action (2,) -> `EgoCommand` (m/s^2, m/s) under `config`'s limits; see the package doc."""
+    a = np.asarray(action, np.float64)
+    if a.size != 2:
+        raise ValueError(f"{where}: action of shape {a.shape}: expected 2 values (acceleration, lateral speed) "
+                         "in [-1, 1]")
+    a = a.reshape(2)
+    if not np.isfinite(a).all():
+        raise ValueError(f"{where}: action {a.tolist()} is not finite; expected 2 values in [-1, 1] (larger "
+                         "values are clipped, NaN and inf are refused)")
+    a = np.clip(a, -1.0, 1.0)
+    acc = a[0] * (config["max_accel"] if a[0] >= 0 else config["max_decel"])
+    return EgoCommand(float(acc), float(a[1] * config["max_lateral_speed"]))
 
 
 class SumoDenseEnv(DenseTrafficEnv):

@@ -104,6 +104,12 @@ class HighwaySimulator:
                        Event(kind=k, t=t, agent_id=a) for k, a, t in raw if k != "collision")
         return self._frame(events)
 
+    def restart_ego(self) -> Frame:
+        """A new ego run in the running traffic: the ego leaves and enters again as at reset; frame t = 0."""
+        self.env.restart_ego()
+        self.frame_index = 0
+        return self._frame(())
+
     def _frame(self, events: tuple[Event, ...]) -> Frame:
         s = self.env.traffic.state
         ego = np.flatnonzero(s.is_ego)

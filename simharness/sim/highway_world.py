@@ -225,6 +225,16 @@ class HeteroHighwayEnv(AbstractEnv):
             if self.traffic.insert_ego(AgentType.parse(ego.get("type", "car")), float(ego.get("speed", 8.0))):
                 self._ego_pending = False
 
+    def restart_ego(self) -> None:
+        """Take the ego off the road and let it enter again as after warm-up; traffic runs on, the clock restarts."""
+        s = self.traffic.state
+        if s.is_ego.any():
+            s.keep(~s.is_ego)
+        self.warmup_s = self.traffic.time
+        self._ego_pending = self.config["ego"] is not None
+        self.ego_collided = False
+        self._maybe_insert_ego()
+
     def advance(self, n_steps: int, command: tuple[float, float] | None = None) -> list[tuple[str, str, float]]:
         """Run n_steps dynamics steps with the ego command held; returns [(event kind, agent id, clock s)]."""
         events = []

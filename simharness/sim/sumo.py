@@ -122,6 +122,7 @@ class SumoSimulator:
         self._crossings = Crossings(self.spec, self.net, rng)
         self._ghost: GhostEgo | None = None
         self._ego_due = self.spec.ego.enabled
+        self._ego_from = self.spec.warmup  # SUMO time (s) from which insert_at counts; restart_ego moves it
         warm_steps = int(round(self.spec.warmup / self.spec.step_length))
         self._advance(warm_steps, recording=False)
         self._events.clear()
@@ -140,6 +141,25 @@ class SumoSimulator:
         for _ in range(frames):
             self._advance(self.spec.steps_per_frame, recording=False)
             self._t += self.dt
+
+    def restart_ego(self) -> Frame:
+        """A new ego run in the running traffic: the ego leaves, and enters again at its start point on the
+        next step as at reset (SUMO's clock runs on; recorded time restarts at 0). Background vehicles
+        keep what they were told for a cut-in ego."""
+        self._require_running()
+        if not self.spec.ego.enabled:
+            raise SimulatorError(f"scenario {self.spec.name}: restart_ego needs the scenario's ego enabled")
+        if self._ego_in_sumo and EGO_ID in libsumo.vehicle.getIDList():
+            libsumo.vehicle.remove(EGO_ID)
+        self._ghost = None
+        self._ego_in_sumo = self._ego_controlled = False
+        self._ego_lat_v = 0.0
+        self._ego_due = True
+        self._ego_from = float(libsumo.simulation.getTime())
+        self._contacts = {c for c in self._contacts if EGO_ID not in c}
+        self._events.clear()
+        self._t = 0.0
+        return self._frame()
 
     def close(self) -> None:
         """End the SUMO run (the network folder stays until the object is garbage collected)."""
@@ -228,7 +248,7 @@ class SumoSimulator:
     def _control_ego(self, command: EgoCommand | None, sl: float, frame_start: bool) -> None:
         spec = self.spec.ego
         now = libsumo.simulation.getTime()
-        if self._ego_due and now >= self.spec.warmup + spec.insert_at - 1e-9:
+        if self._ego_due and now >= self._ego_from + spec.insert_at - 1e-9:
             self._ego_due = False
             self._insert_ego()
         if self._ghost is not None:

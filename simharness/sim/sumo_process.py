@@ -11,8 +11,8 @@ API (all methods block until the worker answers):
 
 - ``SumoProcess(spec)``: start the worker and build the network; ``.spec``, ``.dt``, ``.road`` as
   on `SumoSimulator`.
-- ``reset(seed) -> Frame``, ``step(ego_command=None) -> Frame``, ``advance_unrecorded(frames)``:
-  exactly `SumoSimulator`'s.
+- ``reset(seed) -> Frame``, ``step(ego_command=None) -> Frame``, ``advance_unrecorded(frames)``,
+  ``restart_ego() -> Frame``: exactly `SumoSimulator`'s.
 - ``branch() -> SumoProcess``: an independent copy of the running simulation, made by ``os.fork()``
   of the worker (libsumo's whole state, SUMO's RNGs and the harness bookkeeping are copied by the
   fork). Stepping the branch never touches the original; the branch stepped with the same ego
@@ -97,6 +97,10 @@ class SumoProcess:
     def step(self, ego_command: EgoCommand | None = None) -> Frame:
         """Advance one recorded frame; the ego follows `ego_command` (None: SUMO's own models)."""
         return self._call("step", ego_command)
+
+    def restart_ego(self) -> Frame:
+        """`SumoSimulator.restart_ego` in the worker: a new ego run in the running traffic."""
+        return self._call("restart_ego", None)
 
     def advance_unrecorded(self, frames: int) -> None:
         """`SumoSimulator.advance_unrecorded` in the worker."""
@@ -230,6 +234,8 @@ def _serve(conn: Connection, sim: Any, spec: ScenarioSpec, forked: bool) -> None
                 value = sim.reset(arg)
             elif op == "step":
                 value = sim.step(arg)
+            elif op == "restart_ego":
+                value = sim.restart_ego()
             elif op == "advance_unrecorded":
                 value = sim.advance_unrecorded(arg)
             else:

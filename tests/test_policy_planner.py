@@ -1,0 +1,70 @@
+"""PolicyPlanner: the env's own observation and action mapping, driving the ego in the real closed loop."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import simharness.envs  # noqa: F401
+from simharness.closedloop import LoopConfig, prepare_spec, simulate
+from simharness.errors import UserError
+from simharness.policy_planner import PolicyPlanner, load_policy_planner
+from simharness.scenario import load_scenario
+from simharness.scene import Scene
+
+
+class Recorder:
+    """A fixed-action policy that keeps what it was shown (SB3's predict signature)."""
+
+    def __init__(self, action: tuple[float, float]) -> None:
+        self.action = np.asarray(action, np.float32)
+        self.seen: list[np.ndarray] = []
+
+    def predict(self, observation, state=None, episode_start=None, deterministic=False):  # noqa: ANN001
+        self.seen.append(observation)
+        return self.action, None
+
+
+def _now(frame) -> Scene:  # noqa: ANN001 - what the loop hands a planner: the frame as a one-column Scene
+    return Scene(xy=frame.xy[:, None], heading=frame.heading[:, None], speed=frame.speed[:, None],
+                 valid=np.ones((frame.num_agents, 1), bool), agent_id=frame.agent_id, agent_type=frame.agent_type,
+                 length=frame.length, width=frame.width, dt=0.2, ego=frame.ego)
+
+
+def test_planner_sees_the_env_observation_and_maps_actions_like_the_env():
+    env = gym.make("simharness/HighwayDense-v0", config={"duration": 4.0, "warmup": 8.0}).unwrapped
+    obs, _ = env.reset(seed=3)
+    policy = Recorder((0.5, -2.0))
+    planner = PolicyPlanner(policy)
+    for frame in env._history.frames:  # the env's reset frames: H of them, the ego in each
+        command = planner.plan(_now(frame), None)
+    assert np.array_equal(policy.seen[-1], obs)
+    assert command == env.command(np.array([0.5, -2.0]))  # clipped to -1, scaled like the env
+    for _ in range(3):
+        obs, *_ = env.step(np.array([0.5, -1.0], np.float32))
+        planner.plan(_now(env._history.now), None)
+        assert np.array_equal(policy.seen[-1], obs)
+    planner.reset()
+    assert planner.plan(_now(env._history.now), None) is None  # no history yet: the simulator drives
+    env.close()
+
+
+def test_sb3_policy_drives_the_closed_loop(tmp_path):
+    import torch
+    from stable_baselines3 import PPO
+
+    torch.set_num_threads(1)
+    env = gym.make("simharness/HighwayDense-v0", config={"duration": 4.0, "warmup": 8.0})
+    PPO("MlpPolicy", env, n_steps=64, seed=0, device="cpu").save(tmp_path / "p.zip")
+    env.close()
+    spec = prepare_spec(load_scenario("highway_mixed_dense").with_overrides({"duration": 4.0, "warmup": 8.0}))
+    planner = load_policy_planner(tmp_path / "p.zip")
+    scene, _, _, timing = simulate(spec, 0, None, planner, LoopConfig())
+    e = scene.ego
+    assert e >= 0 and scene.valid[e].sum() >= 15 and timing["plan"] > 0
+    with pytest.raises(UserError, match="no such file"):
+        load_policy_planner(tmp_path / "missing.zip")
+    (tmp_path / "bad.zip").write_bytes(b"not a zip")
+    with pytest.raises(UserError, match="not a stable-baselines3 PPO model"):
+        load_policy_planner(tmp_path / "bad.zip")
