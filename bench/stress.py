@@ -13,6 +13,7 @@ Each (scenario, predictor) result is kept under --out and reused on a rerun (del
 
     .venv/bin/python bench/stress.py --seeds 0-49 --predictors oracle,static,const-vel,traphic
     .venv/bin/python bench/stress.py --seeds 0-19 --predictors cs-lstm,none --open-loop-seeds 0-9
+    .venv/bin/python bench/stress.py --sensitivity step_out --predictors oracle --perturb noise=0,1,2,4 --seeds 0-19
 """
 
 from __future__ import annotations
@@ -29,12 +30,30 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
 
 from simharness.cli import parse_seeds  # noqa: E402
-from simharness.closedloop import aggregate, prepare_spec, run_closed_loop  # noqa: E402
+from simharness.closedloop import EpisodeJob, aggregate, prepare_spec, run_episode  # noqa: E402
 from simharness.scenario import SCENARIO_DIR, load_scenario  # noqa: E402
 
 STRESS = sorted(p.stem for p in (SCENARIO_DIR / "stress").glob("*.toml"))
 FIGURES = ("at_fault_collision_rate", "collision_rate", "composite_score", "near_misses_per_min", "progress_m",
            "online_ade")
+
+
+def scores_of(job: EpisodeJob) -> dict:
+    return run_episode(job)["scores"]
+
+
+def run_jobs(jobs: list[EpisodeJob], workers: int, desc: str) -> list[dict]:
+    """Episodes' scores through `workers` long-lived processes (the highway backend needs no fresh process per
+    episode, unlike libsumo, so the project's executor's per-job start-up is skipped here), in job order."""
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+
+    from tqdm import tqdm
+
+    if workers <= 1:
+        return [scores_of(j) for j in tqdm(jobs, desc=desc, file=sys.stderr)]
+    with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn")) as pool:
+        return list(tqdm(pool.map(scores_of, jobs), total=len(jobs), desc=desc, file=sys.stderr))
 
 
 def closed_loop(scenario: str, predictor: str, seeds: list[int], workers: int, out: Path) -> dict:
@@ -46,8 +65,8 @@ def closed_loop(scenario: str, predictor: str, seeds: list[int], workers: int, o
             return cached
     spec = prepare_spec(load_scenario(f"stress/{scenario}"))
     t0 = time.perf_counter()
-    results = run_closed_loop(spec, predictor, seeds, workers=workers, progress=True)
-    episodes = [r["scores"] for r in results]
+    episodes = run_jobs([EpisodeJob(spec, s, predictor, keep_scene=False) for s in seeds], workers,
+                        f"{scenario} {predictor}")
     agg = aggregate(episodes)
     if any("composite_score" in e for e in episodes):
         from simharness.closedloop import bootstrap_ci
@@ -134,6 +153,28 @@ def markdown(table: dict[str, dict[str, dict]], openloop: dict[str, dict[str, di
     return "\n".join(lines) + "\n"
 
 
+def sensitivity_run(scenario: str, predictor: str, perturb: list[str], seeds: list[int], workers: int,
+                    out: Path) -> dict:
+    """`simharness sensitivity` through the long-lived pool: writes out/sensitivity/<scenario>/."""
+    from simharness.closedloop import LoopConfig
+    from simharness.closedloop.perturbations import parse_grid
+    from simharness.closedloop.sensitivity import markdown_table, sensitivity_jobs, summarise, write_outputs
+
+    spec = load_scenario(f"stress/{scenario}")
+    grid = parse_grid(perturb)
+    jobs = sensitivity_jobs(spec, predictor, grid, seeds)
+    t0 = time.perf_counter()
+    scores = run_jobs(jobs, workers, f"sensitivity {scenario}")
+    by_label: dict[str, list[dict]] = {p.label(): [] for p in grid}
+    for job, sc in zip(jobs, scores, strict=True):
+        by_label[job.perturbation.label()].append(sc)
+    result = summarise(prepare_spec(spec), predictor, grid, seeds, LoopConfig(), by_label, time.perf_counter() - t0)
+    write_outputs(out / "sensitivity" / scenario, result)
+    print(f"Sensitivity of {scenario} ({predictor}), seeds {seeds[0]}-{seeds[-1]}; monotone: {result['monotone']}")
+    print(markdown_table(result))
+    return result
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--scenarios", default=",".join(STRESS), help="stress scenario names (default: all)")
@@ -143,7 +184,14 @@ def main() -> int:
     p.add_argument("--open-loop-predictors", default="traphic,cs-lstm,const-vel")
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--out", type=Path, default=Path("runs/bench_stress"))
+    p.add_argument("--sensitivity", default=None, help="instead: the sensitivity grid on these scenarios (a,b)")
+    p.add_argument("--perturb", action="append", default=[], help="as `simharness sensitivity --perturb`")
     a = p.parse_args()
+    if a.sensitivity:
+        for sc in a.sensitivity.split(","):
+            sensitivity_run(sc.strip(), a.predictors.split(",")[0], a.perturb or ["noise=0,1,2,4"], a.seeds,
+                            a.workers, a.out)
+        return 0
     scenarios = [s.strip() for s in a.scenarios.split(",") if s.strip()]
     predictors = [s.strip() for s in a.predictors.split(",") if s.strip()]
     table: dict[str, dict[str, dict]] = {}
