@@ -76,8 +76,7 @@ def closed_loop(scenario: str, predictor: str, seeds: list[int], workers: int, o
     row = {"scenario": scenario, "predictor": predictor, "seeds": seeds, "episodes": len(episodes),
            "wall_s": round(time.perf_counter() - t0, 1), "mean_episode_wall_s": sum(e["wall_s"] for e in episodes)
            / max(len(episodes), 1), **keep,
-           "per_episode": [{k: e.get(k) for k in ("seed", "collided", "at_fault_collided", "composite_score",
-                                                  "online_ade", "progress_m")} for e in episodes]}
+           "per_episode": [{k: v for k, v in e.items() if not isinstance(v, dict)} for e in episodes]}
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(row, indent=1, default=float) + "\n")
     return row
