@@ -56,13 +56,18 @@ def run_jobs(jobs: list[EpisodeJob], workers: int, desc: str) -> list[dict]:
         return list(tqdm(pool.map(scores_of, jobs), total=len(jobs), desc=desc, file=sys.stderr))
 
 
-def closed_loop(scenario: str, predictor: str, seeds: list[int], workers: int, out: Path) -> dict:
-    """Aggregate scores of one predictor on one stress scenario (cached in out/closedloop/)."""
+def closed_loop(scenario: str, predictor: str, seeds: list[int], workers: int, out: Path,
+                cached_only: bool = False) -> dict | None:
+    """Aggregate scores of one predictor on one stress scenario (cached in out/closedloop/).
+
+    cached_only: whatever is cached, on whichever seeds (None when nothing is)."""
     path = out / "closedloop" / scenario / f"{predictor}.json"
     if path.is_file():
         cached = json.loads(path.read_text())
-        if cached["seeds"] == seeds:
+        if cached["seeds"] == seeds or cached_only:
             return cached
+    if cached_only:
+        return None
     spec = prepare_spec(load_scenario(f"stress/{scenario}"))
     t0 = time.perf_counter()
     episodes = run_jobs([EpisodeJob(spec, s, predictor, keep_scene=False) for s in seeds], workers,
@@ -122,12 +127,15 @@ def markdown(table: dict[str, dict[str, dict]], openloop: dict[str, dict[str, di
     """The suite as Markdown: per scenario the closed-loop figures, then the leaderboard with open-loop ranks."""
     score = "composite_score" if any("composite_score" in r for rows in table.values() for r in rows.values()) \
         else None
-    lines = [f"Closed loop, seeds {seeds[0]}-{seeds[-1]} ({len(seeds)} per cell), mean [95% bootstrap CI].", "",
-             "| scenario | predictor | at-fault collision rate | collision rate | composite score | near misses / min "
-             "| progress (m) | online ADE (m) | s / episode |", "|" + "---|" * 9]
+    lines = ["Closed loop: mean [95% bootstrap CI] over the seeds of each row.", "",
+             "| scenario | predictor | seeds | at-fault collision rate | collision rate | composite score "
+             "| near misses / min "
+             "| progress (m) | online ADE (m) | s / episode |", "|" + "---|" * 10]
     for sc, rows in table.items():
         for name, r in rows.items():
-            lines.append(f"| {sc} | {name} | {fmt(r.get('at_fault_collision_rate'))} | {fmt(r.get('collision_rate'))} "
+            seeds_txt = f"{r['seeds'][0]}-{r['seeds'][-1]}"
+            lines.append(f"| {sc} | {name} | {seeds_txt} | {fmt(r.get('at_fault_collision_rate'))} "
+                         f"| {fmt(r.get('collision_rate'))} "
                          f"| {fmt(r.get('composite_score'))} | {fmt(r.get('near_misses_per_min'))} "
                          f"| {fmt(r.get('progress_m'))} | {fmt(r.get('online_ade'))} "
                          f"| {r['mean_episode_wall_s']:.1f} |")
@@ -183,6 +191,7 @@ def main() -> int:
     p.add_argument("--open-loop-predictors", default="traphic,cs-lstm,const-vel")
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--out", type=Path, default=Path("runs/bench_stress"))
+    p.add_argument("--report", action="store_true", help="only tabulate what is cached under --out (any seeds)")
     p.add_argument("--sensitivity", default=None, help="instead: the sensitivity grid on these scenarios (a,b)")
     p.add_argument("--perturb", action="append", default=[], help="as `simharness sensitivity --perturb`")
     a = p.parse_args()
@@ -195,7 +204,8 @@ def main() -> int:
     predictors = [s.strip() for s in a.predictors.split(",") if s.strip()]
     table: dict[str, dict[str, dict]] = {}
     for sc in scenarios:
-        table[sc] = {name: closed_loop(sc, name, a.seeds, a.workers, a.out) for name in predictors}
+        rows = {name: closed_loop(sc, name, a.seeds, a.workers, a.out, a.report) for name in predictors}
+        table[sc] = {k: v for k, v in rows.items() if v is not None}
     print(f"Closed loop, seeds {a.seeds[0]}-{a.seeds[-1]} ({len(a.seeds)}): mean [95% bootstrap CI]")
     print(f"{'scenario':10} {'predictor':10} {'at-fault rate':>20} {'collision rate':>20} {'composite':>20} "
           f"{'near miss/min':>20} {'online ADE':>20} {'s/episode':>9}")
