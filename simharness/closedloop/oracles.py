@@ -1,21 +1,27 @@
 """Reference forecasters of the closed loop: the exact oracle (the others' true future) and "static".
 
 The oracle (`predictor="oracle"`, `BranchOracle`) is exact on every backend and under every background
-`reaction`: its forecast at frame k is what the other agents then do in the same episode. It reads
-them from a branch of the live simulator (highway: a deep copy, RNG included; SUMO: a fork of the
-`SumoProcess` worker) rolled ahead `window_s` with the ego driven exactly as the episode drives it:
-a copy of the planner, the loop's own `LoopClock`, forecasts taken from a guess of the branch's
-future. Under a reacting background the others' future depends on the ego's, which depends on the
-forecasts: the oracle iterates guess -> branch -> guess until the ego's commands over the window no
-longer change. Then (the backends being deterministic) the branch's future is the guess it was
-planned on, i.e. a fixed point, and the episode, whose planner is fed that same future, repeats the
-branch frame for frame. One converged branch serves every prediction for the next
-`window - (horizon + 2 planning horizons)` frames (a prediction needs its horizon, plus the ego's
-planning horizon beyond it, plus one more for the ego's decisions there to rest on a settled
-future); the oracle then branches again from the live state, warm-started from the last one.
-It checks that the episode did follow the branch (`mismatches` counts frames where the live
-state differed from it; each restarts the branch) and reports its work (`branches`, `iterations`).
-Online error is scored like any predictor's, so its exactness is visible in every scorecard.
+`reaction`, wherever an exact forecast exists: its forecast at frame k is what the other agents then do
+in the same episode. It reads them from a branch of the live simulator (highway: a deep copy, RNG
+included; SUMO: a fork of the `SumoProcess` worker) rolled ahead `oracle_window_s` with the ego driven
+exactly as the episode drives it: a copy of the planner, the loop's own `LoopClock`, forecasts read
+from a guess of the branch's future. Under a reacting background the others' future depends on the
+ego's, which depends on the forecasts: the oracle iterates guess -> branch -> guess until the ego,
+fed the branch's own future, gives the same commands again (checked by replanning over the branch's
+recorded frames, without simulating). Then (the backends being deterministic) the branch's future
+is the one it was planned on, a fixed point, and the episode, whose planner is fed that same
+future, repeats the branch frame for frame.
+
+One converged branch serves every prediction for the next `window - (horizon + 2 planning
+horizons)` frames (a prediction needs its horizon, the ego's planning horizon beyond it, and one
+more for the ego's decisions there to rest on a settled future); the oracle then branches again
+from the live state, warm-started from the last branch. Where no fixed point exists (a
+self-defeating forecast: told that a scooter cuts in, the ego holds back and the scooter does
+not cut in; told it does not, the ego closes up and it does) the iteration cycles; the oracle
+stops there (`cycles`) or after `max_iterations` (`unconverged`) and the forecast is inexact for
+those seconds. It checks that the episode did follow the branch (`mismatches`: frames where the
+live state differed from it; each starts a new branch). Its online error is scored like any
+predictor's, so how exact it was is visible in every scorecard.
 
 "static" (`StaticForecast`): the sampling planner with no prediction: everyone stays put.
 """
@@ -152,7 +158,8 @@ class BranchOracle:
         return self._forecast_from(self.track, frame, k)
 
     def _branch_out(self, k: int, frame: Frame, sim: Any, planner: Planner, clock: LoopClock) -> None:
-        """Iterate guess -> branch from the live state until the ego's commands repeat; keep the last branch."""
+        """Iterate guess -> branch from the live state until the branch's future is the one its ego was
+        planned on (checked by replanning over the branch's frames: no simulation); keep the last branch."""
         guess = self.track if self.track is not None else Track.of([frame], k)
         # The forecasts this branch will serve need the others' truth up to window - 2 planning horizons,
         # hence the ego's commands up to there; later ones rest on forecasts extrapolated past the window.
@@ -160,10 +167,10 @@ class BranchOracle:
         seen: list[list[EgoCommand | None]] = []
         self.stats["branches"] += 1
         for _ in range(self.max_iterations):
-            track, commands = self._rollout(k, frame, sim, planner, clock, guess)
+            track, frames, commands = self._rollout(k, frame, sim, planner, clock, guess)
             self.stats["iterations"] += 1
-            if guess.start == k and track.agrees(guess, settled + 1):
-                break  # a fixed point: the branch's future is the one it was planned on
+            if self._replan(k, frames, planner, clock, track, commands[:settled]):
+                break  # a fixed point: planned on its own future, the ego does what it did
             if commands[:settled] in seen:  # a cycle: no forecast comes true there (a self-defeating one)
                 self.stats["cycles"] += 1
                 break
@@ -173,27 +180,36 @@ class BranchOracle:
             self.stats["unconverged"] += 1
         self.track = track
 
+    def _drive(self, j: int, k: int, f: Frame, planner: Planner, clock: LoopClock, guess: Track) -> EgoCommand | None:
+        """The ego's command at frame j of a branch started at frame k, forecasts read from `guess`."""
+        if j > k and not clock.tick(f.ego >= 0):  # the episode ticked frame k already
+            return None
+        if clock.due(j):
+            clock.issue(j, self._forecast_from(guess, f, j))
+        return planner.plan(scene_of(f, self.dt), clock.current(j))
+
     def _rollout(self, k: int, frame: Frame, sim: Any, planner: Planner, clock: LoopClock, guess: Track
-                 ) -> tuple[Track, list[EgoCommand | None]]:
+                 ) -> tuple[Track, list[Frame], list[EgoCommand | None]]:
         """One branch of `window` frames from the live state, the ego planned on forecasts read from `guess`."""
         branch = sim.branch()
         planner, clock = copy.deepcopy(planner), copy.deepcopy(clock)
         frames, commands = [frame], []
         try:
-            f = frame
             for j in range(k, k + self.window):  # frames are sequential: the loop itself, as in the episode
-                acting = True if j == k else clock.tick(f.ego >= 0)  # the episode ticked frame k already
-                command = None
-                if acting:
-                    if clock.due(j):
-                        clock.issue(j, self._forecast_from(guess, f, j))
-                    command = planner.plan(scene_of(f, self.dt), clock.current(j))
-                commands.append(command)
-                f = branch.step(command)
-                frames.append(f)
+                commands.append(self._drive(j, k, frames[-1], planner, clock, guess))
+                frames.append(branch.step(commands[-1]))
         finally:
             branch.close()
-        return Track.of(frames, k), commands
+        return Track.of(frames, k), frames, commands
+
+    def _replan(self, k: int, frames: list[Frame], planner: Planner, clock: LoopClock, track: Track,
+                commands: list[EgoCommand | None]) -> bool:
+        """Whether the ego, fed forecasts read from `track`, gives `commands` again over the branch's frames."""
+        planner, clock = copy.deepcopy(planner), copy.deepcopy(clock)
+        for i, command in enumerate(commands):  # stops at the first command that differs
+            if self._drive(k + i, k, frames[i], planner, clock, track) != command:
+                return False
+        return True
 
 
 def scene_of(frame: Frame, dt: float) -> Scene:
