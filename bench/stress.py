@@ -34,7 +34,7 @@ from simharness.closedloop import EpisodeJob, aggregate, prepare_spec, run_episo
 from simharness.scenario import SCENARIO_DIR, load_scenario  # noqa: E402
 
 STRESS = sorted(p.stem for p in (SCENARIO_DIR / "stress").glob("*.toml"))
-FIGURES = ("at_fault_collision_rate", "collision_rate", "composite_score", "near_misses_per_min", "progress_m",
+FIGURES = ("at_fault_collision_rate", "collision_rate", "composite", "near_misses_per_min", "progress_m",
            "online_ade")
 
 
@@ -64,6 +64,10 @@ def closed_loop(scenario: str, predictor: str, seeds: list[int], workers: int, o
     path = out / "closedloop" / scenario / f"{predictor}.json"
     if path.is_file():
         cached = json.loads(path.read_text())
+        if "composite" not in cached and any("composite" in e for e in cached["per_episode"]):
+            from simharness.closedloop import bootstrap_ci
+
+            cached["composite"] = bootstrap_ci([e.get("composite") for e in cached["per_episode"]])
         if cached["seeds"] == seeds or cached_only:
             return cached
     if cached_only:
@@ -73,10 +77,6 @@ def closed_loop(scenario: str, predictor: str, seeds: list[int], workers: int, o
     episodes = run_jobs([EpisodeJob(spec, s, predictor, keep_scene=False) for s in seeds], workers,
                         f"{scenario} {predictor}")
     agg = aggregate(episodes)
-    if any("composite_score" in e for e in episodes):
-        from simharness.closedloop import bootstrap_ci
-
-        agg.setdefault("composite_score", bootstrap_ci([e.get("composite_score") for e in episodes]))
     keep = {k: agg[k] for k in FIGURES if k in agg}
     row = {"scenario": scenario, "predictor": predictor, "seeds": seeds, "episodes": len(episodes),
            "wall_s": round(time.perf_counter() - t0, 1), "mean_episode_wall_s": sum(e["wall_s"] for e in episodes)
@@ -125,7 +125,7 @@ def discriminates(rows: dict[str, dict]) -> str:
 
 def markdown(table: dict[str, dict[str, dict]], openloop: dict[str, dict[str, dict]], seeds: list[int]) -> str:
     """The suite as Markdown: per scenario the closed-loop figures, then the leaderboard with open-loop ranks."""
-    score = "composite_score" if any("composite_score" in r for rows in table.values() for r in rows.values()) \
+    score = "composite" if any("composite" in r for rows in table.values() for r in rows.values()) \
         else None
     lines = ["Closed loop: mean [95% bootstrap CI] over the seeds of each row.", "",
              "| scenario | predictor | seeds | at-fault collision rate | collision rate | composite score "
@@ -136,7 +136,7 @@ def markdown(table: dict[str, dict[str, dict]], openloop: dict[str, dict[str, di
             seeds_txt = f"{r['seeds'][0]}-{r['seeds'][-1]}"
             lines.append(f"| {sc} | {name} | {seeds_txt} | {fmt(r.get('at_fault_collision_rate'))} "
                          f"| {fmt(r.get('collision_rate'))} "
-                         f"| {fmt(r.get('composite_score'))} | {fmt(r.get('near_misses_per_min'))} "
+                         f"| {fmt(r.get('composite'))} | {fmt(r.get('near_misses_per_min'))} "
                          f"| {fmt(r.get('progress_m'))} | {fmt(r.get('online_ade'))} "
                          f"| {r['mean_episode_wall_s']:.1f} |")
     lines += ["", "| scenario | discriminating (at-fault rate: oracle <= 0.02, static >= 0.30, const-vel between) |",
@@ -212,7 +212,7 @@ def main() -> int:
     for sc, rows in table.items():
         for name, r in rows.items():
             print(f"{sc:10} {name:10} {fmt(r.get('at_fault_collision_rate')):>20} {fmt(r.get('collision_rate')):>20} "
-                  f"{fmt(r.get('composite_score')):>20} {fmt(r.get('near_misses_per_min')):>20} "
+                  f"{fmt(r.get('composite')):>20} {fmt(r.get('near_misses_per_min')):>20} "
                   f"{fmt(r.get('online_ade')):>20} {r['mean_episode_wall_s']:9.1f}")
         print(f"{sc:10} discriminating: {discriminates(rows)}")
     openloop: dict[str, dict[str, dict]] = {}

@@ -33,7 +33,7 @@ METRICS = (("online_ade", "online_ade", "online ADE (m)"), ("online_fde", "onlin
            ("collision_rate", "collided", "collision rate"),
            ("at_fault_collision_rate", "at_fault_collided", "at-fault collision rate"),
            ("near_misses_per_min", "near_misses_per_min", "near misses / min"),
-           ("progress_m", "progress_m", "progress (m)"), ("composite_score", "composite_score", "composite score"))
+           ("progress_m", "progress_m", "progress (m)"), ("composite", "composite", "composite score"))
 
 
 def run_scores(job: EpisodeJob) -> dict[str, Any]:
