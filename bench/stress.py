@@ -153,7 +153,9 @@ def markdown(table: dict[str, dict[str, dict]], openloop: dict[str, dict[str, di
             names = [n for n in ol if n in table[sc]]
             ol_rank = {n: i + 1 for i, n in enumerate(sorted(names, key=lambda n: ol[n]["ade"]))}
             sign = -1 if score else 1
+            names = [n for n in names if key in table[sc][n]]
             cl_rank = {n: i + 1 for i, n in enumerate(sorted(names, key=lambda n: sign * table[sc][n][key]["mean"]))}
+            ol_rank = {n: i + 1 for i, n in enumerate(sorted(names, key=lambda n: ol[n]["ade"]))}
             for n in names:
                 lines.append(f"| {sc} | {n} | {ol[n]['ade']:.2f} / {ol[n]['fde']:.2f} | {ol_rank[n]} "
                              f"| {fmt(table[sc][n][key])} | {cl_rank[n]} |")
