@@ -13,6 +13,7 @@ Each (scenario, predictor) result is kept under --out and reused on a rerun (del
 
     .venv/bin/python bench/stress.py --seeds 0-49 --predictors oracle,static,const-vel,traphic
     .venv/bin/python bench/stress.py --seeds 0-19 --predictors cs-lstm,none --open-loop-seeds 0-9
+    .venv/bin/python bench/stress.py --sensitivity step_out --predictors oracle --perturb noise=0,1,2,4 --seeds 0-19
 """
 
 from __future__ import annotations
@@ -29,36 +30,58 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
 
 from simharness.cli import parse_seeds  # noqa: E402
-from simharness.closedloop import aggregate, prepare_spec, run_closed_loop  # noqa: E402
+from simharness.closedloop import EpisodeJob, aggregate, prepare_spec, run_episode  # noqa: E402
 from simharness.scenario import SCENARIO_DIR, load_scenario  # noqa: E402
 
 STRESS = sorted(p.stem for p in (SCENARIO_DIR / "stress").glob("*.toml"))
-FIGURES = ("at_fault_collision_rate", "collision_rate", "composite_score", "near_misses_per_min", "progress_m",
+FIGURES = ("at_fault_collision_rate", "collision_rate", "composite", "near_misses_per_min", "progress_m",
            "online_ade")
 
 
-def closed_loop(scenario: str, predictor: str, seeds: list[int], workers: int, out: Path) -> dict:
-    """Aggregate scores of one predictor on one stress scenario (cached in out/closedloop/)."""
+def scores_of(job: EpisodeJob) -> dict:
+    return run_episode(job)["scores"]
+
+
+def run_jobs(jobs: list[EpisodeJob], workers: int, desc: str) -> list[dict]:
+    """Episodes' scores through `workers` long-lived processes (the highway backend needs no fresh process per
+    episode, unlike libsumo, so the project's executor's per-job start-up is skipped here), in job order."""
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+
+    from tqdm import tqdm
+
+    if workers <= 1:
+        return [scores_of(j) for j in tqdm(jobs, desc=desc, file=sys.stderr)]
+    with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn")) as pool:
+        return list(tqdm(pool.map(scores_of, jobs), total=len(jobs), desc=desc, file=sys.stderr))
+
+
+def closed_loop(scenario: str, predictor: str, seeds: list[int], workers: int, out: Path,
+                cached_only: bool = False) -> dict | None:
+    """Aggregate scores of one predictor on one stress scenario (cached in out/closedloop/).
+
+    cached_only: whatever is cached, on whichever seeds (None when nothing is)."""
     path = out / "closedloop" / scenario / f"{predictor}.json"
     if path.is_file():
         cached = json.loads(path.read_text())
-        if cached["seeds"] == seeds:
+        if "composite" not in cached and any("composite" in e for e in cached["per_episode"]):
+            from simharness.closedloop import bootstrap_ci
+
+            cached["composite"] = bootstrap_ci([e.get("composite") for e in cached["per_episode"]])
+        if cached["seeds"] == seeds or cached_only:
             return cached
+    if cached_only:
+        return None
     spec = prepare_spec(load_scenario(f"stress/{scenario}"))
     t0 = time.perf_counter()
-    results = run_closed_loop(spec, predictor, seeds, workers=workers, progress=True)
-    episodes = [r["scores"] for r in results]
+    episodes = run_jobs([EpisodeJob(spec, s, predictor, keep_scene=False) for s in seeds], workers,
+                        f"{scenario} {predictor}")
     agg = aggregate(episodes)
-    if any("composite_score" in e for e in episodes):
-        from simharness.closedloop import bootstrap_ci
-
-        agg.setdefault("composite_score", bootstrap_ci([e.get("composite_score") for e in episodes]))
     keep = {k: agg[k] for k in FIGURES if k in agg}
     row = {"scenario": scenario, "predictor": predictor, "seeds": seeds, "episodes": len(episodes),
            "wall_s": round(time.perf_counter() - t0, 1), "mean_episode_wall_s": sum(e["wall_s"] for e in episodes)
            / max(len(episodes), 1), **keep,
-           "per_episode": [{k: e.get(k) for k in ("seed", "collided", "at_fault_collided", "composite_score",
-                                                  "online_ade", "progress_m")} for e in episodes]}
+           "per_episode": [{k: v for k, v in e.items() if not isinstance(v, dict)} for e in episodes]}
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(row, indent=1, default=float) + "\n")
     return row
@@ -102,15 +125,18 @@ def discriminates(rows: dict[str, dict]) -> str:
 
 def markdown(table: dict[str, dict[str, dict]], openloop: dict[str, dict[str, dict]], seeds: list[int]) -> str:
     """The suite as Markdown: per scenario the closed-loop figures, then the leaderboard with open-loop ranks."""
-    score = "composite_score" if any("composite_score" in r for rows in table.values() for r in rows.values()) \
+    score = "composite" if any("composite" in r for rows in table.values() for r in rows.values()) \
         else None
-    lines = [f"Closed loop, seeds {seeds[0]}-{seeds[-1]} ({len(seeds)} per cell), mean [95% bootstrap CI].", "",
-             "| scenario | predictor | at-fault collision rate | collision rate | composite score | near misses / min "
-             "| progress (m) | online ADE (m) | s / episode |", "|" + "---|" * 9]
+    lines = ["Closed loop: mean [95% bootstrap CI] over the seeds of each row.", "",
+             "| scenario | predictor | seeds | at-fault collision rate | collision rate | composite score "
+             "| near misses / min "
+             "| progress (m) | online ADE (m) | s / episode |", "|" + "---|" * 10]
     for sc, rows in table.items():
         for name, r in rows.items():
-            lines.append(f"| {sc} | {name} | {fmt(r.get('at_fault_collision_rate'))} | {fmt(r.get('collision_rate'))} "
-                         f"| {fmt(r.get('composite_score'))} | {fmt(r.get('near_misses_per_min'))} "
+            seeds_txt = f"{r['seeds'][0]}-{r['seeds'][-1]}"
+            lines.append(f"| {sc} | {name} | {seeds_txt} | {fmt(r.get('at_fault_collision_rate'))} "
+                         f"| {fmt(r.get('collision_rate'))} "
+                         f"| {fmt(r.get('composite'))} | {fmt(r.get('near_misses_per_min'))} "
                          f"| {fmt(r.get('progress_m'))} | {fmt(r.get('online_ade'))} "
                          f"| {r['mean_episode_wall_s']:.1f} |")
     lines += ["", "| scenario | discriminating (at-fault rate: oracle <= 0.02, static >= 0.30, const-vel between) |",
@@ -127,11 +153,35 @@ def markdown(table: dict[str, dict[str, dict]], openloop: dict[str, dict[str, di
             names = [n for n in ol if n in table[sc]]
             ol_rank = {n: i + 1 for i, n in enumerate(sorted(names, key=lambda n: ol[n]["ade"]))}
             sign = -1 if score else 1
+            names = [n for n in names if key in table[sc][n]]
             cl_rank = {n: i + 1 for i, n in enumerate(sorted(names, key=lambda n: sign * table[sc][n][key]["mean"]))}
+            ol_rank = {n: i + 1 for i, n in enumerate(sorted(names, key=lambda n: ol[n]["ade"]))}
             for n in names:
                 lines.append(f"| {sc} | {n} | {ol[n]['ade']:.2f} / {ol[n]['fde']:.2f} | {ol_rank[n]} "
                              f"| {fmt(table[sc][n][key])} | {cl_rank[n]} |")
     return "\n".join(lines) + "\n"
+
+
+def sensitivity_run(scenario: str, predictor: str, perturb: list[str], seeds: list[int], workers: int,
+                    out: Path) -> dict:
+    """`simharness sensitivity` through the long-lived pool: writes out/sensitivity/<scenario>/."""
+    from simharness.closedloop import LoopConfig
+    from simharness.closedloop.perturbations import parse_grid
+    from simharness.closedloop.sensitivity import markdown_table, sensitivity_jobs, summarise, write_outputs
+
+    spec = load_scenario(f"stress/{scenario}")
+    grid = parse_grid(perturb)
+    jobs = sensitivity_jobs(spec, predictor, grid, seeds)
+    t0 = time.perf_counter()
+    scores = run_jobs(jobs, workers, f"sensitivity {scenario}")
+    by_label: dict[str, list[dict]] = {p.label(): [] for p in grid}
+    for job, sc in zip(jobs, scores, strict=True):
+        by_label[job.perturbation.label()].append(sc)
+    result = summarise(prepare_spec(spec), predictor, grid, seeds, LoopConfig(), by_label, time.perf_counter() - t0)
+    write_outputs(out / "sensitivity" / scenario, result)
+    print(f"Sensitivity of {scenario} ({predictor}), seeds {seeds[0]}-{seeds[-1]}; monotone: {result['monotone']}")
+    print(markdown_table(result))
+    return result
 
 
 def main() -> int:
@@ -143,19 +193,28 @@ def main() -> int:
     p.add_argument("--open-loop-predictors", default="traphic,cs-lstm,const-vel")
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--out", type=Path, default=Path("runs/bench_stress"))
+    p.add_argument("--report", action="store_true", help="only tabulate what is cached under --out (any seeds)")
+    p.add_argument("--sensitivity", default=None, help="instead: the sensitivity grid on these scenarios (a,b)")
+    p.add_argument("--perturb", action="append", default=[], help="as `simharness sensitivity --perturb`")
     a = p.parse_args()
+    if a.sensitivity:
+        for sc in a.sensitivity.split(","):
+            sensitivity_run(sc.strip(), a.predictors.split(",")[0], a.perturb or ["noise=0,1,2,4"], a.seeds,
+                            a.workers, a.out)
+        return 0
     scenarios = [s.strip() for s in a.scenarios.split(",") if s.strip()]
     predictors = [s.strip() for s in a.predictors.split(",") if s.strip()]
     table: dict[str, dict[str, dict]] = {}
     for sc in scenarios:
-        table[sc] = {name: closed_loop(sc, name, a.seeds, a.workers, a.out) for name in predictors}
+        rows = {name: closed_loop(sc, name, a.seeds, a.workers, a.out, a.report) for name in predictors}
+        table[sc] = {k: v for k, v in rows.items() if v is not None}
     print(f"Closed loop, seeds {a.seeds[0]}-{a.seeds[-1]} ({len(a.seeds)}): mean [95% bootstrap CI]")
     print(f"{'scenario':10} {'predictor':10} {'at-fault rate':>20} {'collision rate':>20} {'composite':>20} "
           f"{'near miss/min':>20} {'online ADE':>20} {'s/episode':>9}")
     for sc, rows in table.items():
         for name, r in rows.items():
             print(f"{sc:10} {name:10} {fmt(r.get('at_fault_collision_rate')):>20} {fmt(r.get('collision_rate')):>20} "
-                  f"{fmt(r.get('composite_score')):>20} {fmt(r.get('near_misses_per_min')):>20} "
+                  f"{fmt(r.get('composite')):>20} {fmt(r.get('near_misses_per_min')):>20} "
                   f"{fmt(r.get('online_ade')):>20} {r['mean_episode_wall_s']:9.1f}")
         print(f"{sc:10} discriminating: {discriminates(rows)}")
     openloop: dict[str, dict[str, dict]] = {}

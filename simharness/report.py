@@ -189,19 +189,21 @@ def animate_episode(scene: Scene, path: Path | str, road: RoadGeometry | None = 
 
 
 def plot_scorecard(scores: dict[str, dict], path: Path | str) -> Path:
-    """Bars with 95% CIs per ego: collision rate, near-miss rate, progress, online ADE -> PNG.
+    """Bars with 95% CIs per ego: composite score, collision rates, progress, online ADE -> PNG.
 
     scores: ego name -> `simharness.closedloop.aggregate` output.
     """
     path = Path(path)
-    panels = (("collision_rate", "collision rate"), ("near_miss_rate", "near-miss rate"),
-              ("progress_m", "progress (m)"), ("online_ade", "online ADE (m)"))
+    panels = (("composite", "composite score"), ("collision_rate", "collision rate"),
+              ("at_fault_collision_rate", "at-fault collision rate"), ("progress_m", "progress (m)"),
+              ("online_ade", "online ADE (m)"))
     names = list(scores)
     fig, axes = plt.subplots(1, len(panels), figsize=(3.2 * len(panels), 3.0), dpi=110)
     for ax, (key, label) in zip(axes, panels, strict=True):
-        mean = np.array([scores[n][key]["mean"] for n in names], float)
-        lo = np.array([scores[n][key]["lo"] for n in names], float)
-        hi = np.array([scores[n][key]["hi"] for n in names], float)
+        ci = [scores[n].get(key, {}) for n in names]  # scores.json written before a key existed lack it
+        mean = np.array([c.get("mean", np.nan) for c in ci], float)
+        lo = np.array([c.get("lo", np.nan) for c in ci], float)
+        hi = np.array([c.get("hi", np.nan) for c in ci], float)
         x = np.arange(len(names))
         ok = np.isfinite(mean)
         ax.bar(x[ok], mean[ok], color="#4c72b0")

@@ -26,7 +26,7 @@ from simharness.scenario import load_scenario
 from simharness.scene import AgentType, Scene
 
 # A slow, dense queue on a lane-less SUMO arterial; the ego enters at 8 m/s behind it. With
-# reaction "ignore" the background never reacts to the ego, so the oracle's replay is exact.
+# reaction "ignore" the background never reacts to the ego.
 QUEUE = """
 name = "queue_ahead"
 backend = "sumo"
@@ -68,7 +68,7 @@ def test_blind_ego_runs_into_the_queue_and_the_oracle_does_not(queue_results):
         assert s["mean_speed"] < 4.0  # it slowed down for the queue
 
 
-def test_oracle_replay_is_exact_when_the_background_ignores_the_ego(queue_results):
+def test_oracle_is_exact_when_the_background_ignores_the_ego(queue_results):
     for r in queue_results["oracle"]:
         assert r["scores"]["online_samples"] > 0
         assert r["scores"]["online_ade"] == pytest.approx(0.0, abs=1e-4)
@@ -147,8 +147,8 @@ def test_loop_config_predict_rate_is_respected():
     assert n_fast > 4 * n_slow - 5 and n_slow > 0
 
 
-def test_lookahead_oracle_is_exact_on_highway_when_ignored():
-    # highway-env deep-copies: the oracle steps a copy of the live simulator ahead.
+def test_branch_oracle_is_exact_on_highway_when_ignored():
+    # highway-env deep-copies: the oracle rolls a branch of the live simulator ahead.
     spec = prepare_spec(load_scenario("highway_mixed_dense"), "ignore").with_overrides(
         {**SHORT_HIGHWAY, "duration": 8.0})
     s = run_episode(EpisodeJob(spec, 1, "oracle", keep_scene=False))["scores"]

@@ -45,10 +45,14 @@ def _clean(hist: Scene) -> tuple[Forecast, np.ndarray]:
     return ConstVel().predict(hist, targets, F), targets
 
 
+def _perturb(f: Forecast, hist: Scene, targets: np.ndarray, p: Perturbation, rng: np.random.Generator) -> Forecast:
+    return perturb(f, hist.xy[targets, -1], hist.agent_type[targets], p, rng)
+
+
 def test_identity_changes_nothing():
     hist = _history()
     f, targets = _clean(hist)
-    out = perturb(f, hist, targets, Perturbation(), np.random.default_rng(0))
+    out = _perturb(f, hist, targets, Perturbation(), np.random.default_rng(0))
     np.testing.assert_allclose(out.mean, f.mean, atol=1e-5)
     np.testing.assert_allclose(out.sigma_rho, f.sigma_rho)
     assert Perturbation().is_identity and Perturbation().label() == "none"
@@ -57,9 +61,9 @@ def test_identity_changes_nothing():
 def test_noise_grows_with_lead_time_and_is_seeded():
     hist = _history(200)
     f, targets = _clean(hist)
-    a = perturb(f, hist, targets, Perturbation(noise=2.0), np.random.default_rng(7))
-    b = perturb(f, hist, targets, Perturbation(noise=2.0), np.random.default_rng(7))
-    c = perturb(f, hist, targets, Perturbation(noise=2.0), np.random.default_rng(8))
+    a = _perturb(f, hist, targets, Perturbation(noise=2.0), np.random.default_rng(7))
+    b = _perturb(f, hist, targets, Perturbation(noise=2.0), np.random.default_rng(7))
+    c = _perturb(f, hist, targets, Perturbation(noise=2.0), np.random.default_rng(8))
     np.testing.assert_array_equal(a.mean, b.mean)
     assert not np.allclose(a.mean, c.mean)
     err = a.mean - f.mean  # (M, F, 2)
@@ -74,9 +78,9 @@ def test_speed_scales_displacement_and_heading_rotates_it():
     hist = _history()
     f, targets = _clean(hist)
     now = hist.xy[targets, -1][:, None]
-    slow = perturb(f, hist, targets, Perturbation(speed=0.5), np.random.default_rng(0))
+    slow = _perturb(f, hist, targets, Perturbation(speed=0.5), np.random.default_rng(0))
     np.testing.assert_allclose(slow.mean - now, 0.5 * (f.mean - now), atol=1e-5)
-    turned = perturb(f, hist, targets, Perturbation(heading=90.0), np.random.default_rng(0))
+    turned = _perturb(f, hist, targets, Perturbation(heading=90.0), np.random.default_rng(0))
     d0, d1 = f.mean - now, turned.mean - now
     np.testing.assert_allclose(d1[..., 0], -d0[..., 1], atol=1e-4)  # (x, y) -> (-y, x)
     np.testing.assert_allclose(d1[..., 1], d0[..., 0], atol=1e-4)
@@ -85,7 +89,7 @@ def test_speed_scales_displacement_and_heading_rotates_it():
 def test_drop_removes_one_type_and_sigma_scales():
     hist = _history(6)
     f, targets = _clean(hist)
-    out = perturb(f, hist, targets, Perturbation(drop="pedestrian", sigma=3.0), np.random.default_rng(0))
+    out = _perturb(f, hist, targets, Perturbation(drop="pedestrian", sigma=3.0), np.random.default_rng(0))
     kept = hist.agent_type != AgentType.PEDESTRIAN
     assert list(out.agent_id) == list(hist.agent_id[kept])
     assert out.mean.shape == (kept.sum(), F, 2) and out.sigma_rho.shape == (kept.sum(), F, 3)

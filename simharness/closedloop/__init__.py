@@ -12,19 +12,20 @@ One module per concern:
 
 from simharness.closedloop.aggregation import SCORECARD_ROWS, aggregate, bootstrap_ci, scorecard_table
 from simharness.closedloop.command import closedloop_command, demo_closed_loop, write_run
-from simharness.closedloop.config import EpisodeJob, Issued, LoopConfig
+from simharness.closedloop.config import EpisodeJob, Issued, LoopClock, LoopConfig
 from simharness.closedloop.episode import (
            REFERENCE_EGOS,
-           make_planner,
+           make_oracle,
+    make_planner,
            prepare_spec,
            run_closed_loop,
            run_episode,
            simulate,
 )
-from simharness.closedloop.oracles import CLONABLE_BACKENDS, LookaheadOracle, ReplayOracle, StaticForecast
+from simharness.closedloop.oracles import BranchOracle, StaticForecast, Track
 from simharness.closedloop.scoring import SCALARS, online_errors, score_episode
 
-__all__ = ["CLONABLE_BACKENDS", "REFERENCE_EGOS", "SCALARS", "SCORECARD_ROWS", "EpisodeJob", "Issued",
-           "LookaheadOracle", "LoopConfig", "ReplayOracle", "StaticForecast", "aggregate", "bootstrap_ci",
-           "closedloop_command", "demo_closed_loop", "make_planner", "online_errors", "prepare_spec",
-           "run_closed_loop", "run_episode", "score_episode", "scorecard_table", "simulate", "write_run"]
+__all__ = ["REFERENCE_EGOS", "SCALARS", "SCORECARD_ROWS", "EpisodeJob", "Issued",
+           "BranchOracle", "LoopClock", "LoopConfig", "StaticForecast", "aggregate", "bootstrap_ci",
+           "closedloop_command", "demo_closed_loop", "make_oracle", "make_planner", "online_errors", "prepare_spec",
+           "run_closed_loop", "run_episode", "score_episode", "scorecard_table", "simulate", "Track", "write_run"]

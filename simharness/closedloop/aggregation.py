@@ -74,11 +74,13 @@ def _fmt(ci: dict[str, float]) -> str:
     return f"{ci['mean']:.2f} [{ci['lo']:.2f}, {ci['hi']:.2f}]"
 
 
-SCORECARD_ROWS = (("collision_rate", "collision rate (share of episodes)"),
+SCORECARD_ROWS = (("composite", "composite score (0-1, docs/closedloop.md)"),
+                  ("collision_rate", "collision rate (share of episodes)"),
                   ("at_fault_collision_rate", "at-fault collision rate (share of episodes)"),
                   ("near_miss_rate", "near-miss rate (share of episodes)"),
                   ("near_misses_per_min", "near misses per ego-minute"),
-                  ("progress_m", "progress (m)"), ("mean_speed", "mean speed (m/s)"),
+                  ("progress_m", "progress (m)"), ("progress_ratio", "progress / traffic flow's (capped at 1)"),
+                  ("left_drivable", "left the drivable area (share of episodes)"), ("mean_speed", "mean speed (m/s)"),
                   ("time_stuck_s", "time stuck (s)"), ("accel_rms", "RMS acceleration (m/s^2)"),
                   ("jerk_rms", "RMS jerk (m/s^3)"), ("min_gap_m", "minimum gap (m)"),
                   ("background_collisions_per_1000_agent_min", "background collisions / 1000 agent-min"),

@@ -1,4 +1,4 @@
-"""What one closed-loop episode is given (`LoopConfig`, `EpisodeJob`) and what it records (`Issued`)."""
+"""What one closed-loop episode is given (`LoopConfig`, `EpisodeJob`), its clock (`LoopClock`) and record (`Issued`)."""
 
 from __future__ import annotations
 
@@ -20,6 +20,7 @@ class LoopConfig:
     ttc_threshold: float = 1.5  # s: near miss below this time-to-collision
     ttc_horizon: float = 5.0  # s: time-to-collision extrapolation horizon
     stuck_speed: float = 0.5  # m/s: the ego counts as stuck below this speed
+    oracle_window_s: float = 20.0  # s: how far each branch of the exact oracle is rolled ahead
 
 
 @dataclasses.dataclass(frozen=True)
@@ -41,3 +42,43 @@ class Issued:
 
     frames: list[int] = dataclasses.field(default_factory=list)
     forecasts: list[Forecast] = dataclasses.field(default_factory=list)
+
+
+class LoopClock:
+    """When the loop predicts and which forecast the planner sees: the one piece of loop logic that the
+    episode and the oracle's branches share, so that a branch drives its ego exactly as the episode would.
+
+    every: frames between predictions. The planner acts once the ego has 2 frames of history; a forecast
+    is due when none is held or `every` frames have passed; the planner sees the latest forecast shifted
+    by the frames elapsed since it was made.
+    """
+
+    def __init__(self, every: int) -> None:
+        self.every = every
+        self.ego_frames = 0
+        self.latest: Forecast | None = None
+        self.latest_at = -1
+
+    def tick(self, ego_present: bool) -> bool:
+        """Count the ego's frames; whether the planner acts this frame."""
+        self.ego_frames = self.ego_frames + 1 if ego_present else 0
+        return self.ego_frames >= 2
+
+    def due(self, k: int) -> bool:
+        """Whether a forecast is due at frame k."""
+        return self.latest is None or k - self.latest_at >= self.every
+
+    def issue(self, k: int, forecast: Forecast | None) -> None:
+        self.latest, self.latest_at = forecast, k
+
+    def current(self, k: int) -> Forecast | None:
+        """The latest forecast as seen at frame k (its first k - latest_at steps dropped)."""
+        return None if self.latest is None else shift_forecast(self.latest, k - self.latest_at)
+
+
+def shift_forecast(forecast: Forecast, k: int) -> Forecast:
+    """The forecast as seen k frames after it was made (its first k steps dropped)."""
+    if k <= 0:
+        return forecast
+    return Forecast(agent_id=forecast.agent_id, mean=forecast.mean[:, k:], dt=forecast.dt,
+                    sigma_rho=None if forecast.sigma_rho is None else forecast.sigma_rho[:, k:])

@@ -28,14 +28,21 @@ from typing import Any
 
 import numpy as np
 
-from simharness.closedloop.config import EpisodeJob, Issued, LoopConfig
-from simharness.closedloop.oracles import CLONABLE_BACKENDS, LookaheadOracle, ReplayOracle, StaticForecast
+from simharness.closedloop.config import EpisodeJob, Issued, LoopClock, LoopConfig
+from simharness.closedloop.oracles import BranchOracle, StaticForecast, scene_of
 from simharness.closedloop.perturbations import Perturbation, PerturbedPredictor
 from simharness.closedloop.scoring import score_episode
 from simharness.errors import UserError
-from simharness.planners import BackgroundPlanner, ConstantSpeedPlanner, EgoLimits, Planner, SamplingPlanner
+from simharness.planners import (
+    BackgroundPlanner,
+    ConstantSpeedPlanner,
+    EgoLimits,
+    Planner,
+    SamplingPlanner,
+    rows_of,
+)
 from simharness.scenario import ScenarioSpec
-from simharness.scene import Forecast, Predictor, Scene
+from simharness.scene import Predictor, Scene
 from simharness.sim.base import Frame, RoadGeometry, scene_from_frames
 
 REFERENCE_EGOS = ("oracle", "static", "none", "blind")  # not predictors: handled here, not by load_predictor
@@ -49,6 +56,16 @@ def make_planner(name: str, spec: ScenarioSpec, road: RoadGeometry | None) -> Pl
     if name == "blind":
         return ConstantSpeedPlanner()
     return SamplingPlanner(EgoLimits(max_speed=spec.road.speed_limit), road=road)
+
+
+def make_oracle(spec: ScenarioSpec, config: LoopConfig) -> BranchOracle:
+    """The exact oracle for a scenario: forecast and planning horizons in the scenario's frames."""
+    from simharness.planners import SamplingConfig
+
+    dt = spec.dt
+    return BranchOracle(dt, horizon=max(1, int(round(config.horizon_s / dt))),
+                        plan_frames=max(1, int(round(SamplingConfig().horizon_s / dt))), radius=config.radius,
+                        window=int(round(config.oracle_window_s / dt)))
 
 
 def _predictor(name: str) -> Predictor:
@@ -67,48 +84,53 @@ def prepare_spec(spec: ScenarioSpec, reaction: str | None = None) -> ScenarioSpe
     return spec.with_overrides(changes) if changes else spec
 
 
-def simulate(spec: ScenarioSpec, seed: int, predictor: Predictor | None, planner: Planner,
+def simulate(spec: ScenarioSpec, seed: int, predictor: Predictor | BranchOracle | None, planner: Planner,
              config: LoopConfig) -> tuple[Scene, Issued, RoadGeometry, dict[str, float]]:
-    """Run one closed-loop rollout; returns the recorded Scene, the forecasts issued, the road and timings (s)."""
+    """Run one closed-loop rollout; returns the recorded Scene, the forecasts issued, the road and timings (s).
+
+    A `BranchOracle` is handed the live simulator, planner and clock instead of a history (it branches them).
+    """
     from simharness.sim import make_simulator
 
     dt = spec.dt
     hist = max(2, int(round(config.history_s / dt)))
     horizon = max(1, int(round(config.horizon_s / dt)))
-    every = max(1, int(round(1.0 / (config.predict_hz * dt))))
+    clock = LoopClock(every=max(1, int(round(1.0 / (config.predict_hz * dt)))))
     issued = Issued()
     timing = {"reset": 0.0, "sim": 0.0, "predict": 0.0, "plan": 0.0}
     if hasattr(planner, "reset"):
         planner.reset()
-    sim = make_simulator(spec)
+    perturbed = predictor if isinstance(predictor, PerturbedPredictor) else None
+    oracle = isinstance(getattr(predictor, "inner", predictor), BranchOracle)
+    sim = make_simulator(spec, process=oracle)  # SUMO branches by forking its worker process
     try:
         t0 = time.perf_counter()
         frames: list[Frame] = [sim.reset(seed)]
         road = sim.road
         if hasattr(planner, "set_road"):  # the drivable area is only known once the simulator is built
             planner.set_road(road)
-        inner = getattr(predictor, "inner", predictor)  # a PerturbedPredictor's own predictor
-        if isinstance(inner, LookaheadOracle):
-            inner.sim = sim
         timing["reset"] += time.perf_counter() - t0
-        ego_frames, latest, latest_at = 0, None, -1
         for k in range(spec.num_frames - 1):
             frame = frames[-1]
-            ego_frames = ego_frames + 1 if frame.ego >= 0 else 0
             command = None
-            if ego_frames >= 2 and not isinstance(planner, BackgroundPlanner):
+            if clock.tick(frame.ego >= 0) and not isinstance(planner, BackgroundPlanner):
                 t1 = time.perf_counter()
-                if predictor is not None and (latest is None or k - latest_at >= every):
-                    history = _history(frames[-hist:], dt, k + 1 - min(hist, len(frames)), config.radius)
-                    targets = np.flatnonzero(history.valid[:, -1] & (np.arange(history.num_agents) != history.ego))
-                    latest = predictor.predict(history, targets, horizon) if targets.size else None
-                    latest_at = k
-                    if latest is not None:
+                if predictor is not None and clock.due(k):
+                    if oracle:
+                        forecast = (perturbed.inner if perturbed else predictor).forecast(k, frame, sim, planner, clock)
+                        if perturbed is not None and forecast is not None:  # degrade what the live planner is served
+                            rows = rows_of(frame.agent_id, forecast.agent_id)
+                            forecast = perturbed.degrade(forecast, frame.xy[rows], frame.agent_type[rows], k, horizon)
+                    else:
+                        history = _history(frames[-hist:], dt, k + 1 - min(hist, len(frames)), config.radius)
+                        targets = np.flatnonzero(history.valid[:, -1] & (np.arange(history.num_agents) != history.ego))
+                        forecast = predictor.predict(history, targets, horizon) if targets.size else None
+                    clock.issue(k, forecast)
+                    if forecast is not None:
                         issued.frames.append(k)
-                        issued.forecasts.append(latest)
+                        issued.forecasts.append(forecast)
                 t2 = time.perf_counter()
-                now = _scene_of(frame, dt)
-                command = planner.plan(now, _shift(latest, k - latest_at) if latest is not None else None)
+                command = planner.plan(scene_of(frame, dt), clock.current(k))
                 timing["predict"] += t2 - t1
                 timing["plan"] += time.perf_counter() - t2
             t3 = time.perf_counter()
@@ -130,22 +152,6 @@ def _history(frames: Sequence[Frame], dt: float, frame0: int, radius: float) -> 
     return scene.select_agents(near)
 
 
-def _scene_of(frame: Frame, dt: float) -> Scene:
-    """One frame as a one-column Scene (the planner's "now"), built directly: no id matching needed."""
-    return Scene(xy=frame.xy[:, None], heading=frame.heading[:, None], speed=frame.speed[:, None],
-                 valid=np.ones((frame.num_agents, 1), bool), agent_id=frame.agent_id, agent_type=frame.agent_type,
-                 length=frame.length, width=frame.width, dt=dt, ego=frame.ego,
-                 extra={k: v[:, None] for k, v in frame.extra.items()})
-
-
-def _shift(forecast: Forecast, k: int) -> Forecast:
-    """The forecast as seen k frames after it was made (its first k steps dropped)."""
-    if k <= 0:
-        return forecast
-    return Forecast(agent_id=forecast.agent_id, mean=forecast.mean[:, k:], dt=forecast.dt,
-                    sigma_rho=None if forecast.sigma_rho is None else forecast.sigma_rho[:, k:])
-
-
 def run_episode(job: EpisodeJob) -> dict[str, Any]:
     """The job function: one episode -> {"scores", "scene" (optional), "forecasts" (optional), "road"}."""
     import os
@@ -160,15 +166,10 @@ def run_episode(job: EpisodeJob) -> dict[str, Any]:
     spec, cfg = job.spec, job.config
     wall0 = time.perf_counter()
     predictor: Predictor | None = None
-    reference_s = 0.0
     if job.predictor == "static":
         predictor = StaticForecast()
-    elif job.predictor == "oracle" and spec.backend in CLONABLE_BACKENDS:
-        predictor = LookaheadOracle()
     elif job.predictor == "oracle":
-        ref_scene, _, _, _ = simulate(spec, job.seed, None, BackgroundPlanner(), cfg)
-        predictor = ReplayOracle(ref_scene)
-        reference_s = time.perf_counter() - wall0
+        predictor = make_oracle(spec, cfg)
     elif job.predictor not in REFERENCE_EGOS:
         predictor = _predictor(job.predictor)
     if job.perturbation is not None and predictor is not None and not job.perturbation.is_identity:
@@ -180,9 +181,11 @@ def run_episode(job: EpisodeJob) -> dict[str, Any]:
     sim_s = scene.num_frames * scene.dt
     loop_s = timing["sim"] + timing["predict"] + timing["plan"]
     scores.update({"seed": job.seed, "predictor": job.predictor, "wall_s": wall, "sim_s": sim_s,
-                   "realtime_factor": sim_s / max(loop_s, 1e-9), "reference_s": reference_s,
-                   "realtime_factor_with_warmup": (sim_s + spec.warmup) / max(wall - reference_s, 1e-9),
+                   "realtime_factor": sim_s / max(loop_s, 1e-9),
+                   "realtime_factor_with_warmup": (sim_s + spec.warmup) / max(wall, 1e-9),
                    **{f"time_{k}_s": v for k, v in timing.items()}})
+    if isinstance(getattr(predictor, "inner", predictor), BranchOracle):
+        scores.update({f"oracle_{k}": v for k, v in getattr(predictor, "inner", predictor).stats.items()})
     out: dict[str, Any] = {"scores": scores, "road": road.to_dict()}
     if job.keep_scene:
         out["scene"] = scene

@@ -1,38 +1,43 @@
-"""Reference forecasters of the closed loop: the oracle (the others' true future) and "static".
+"""Reference forecasters of the closed loop: the exact oracle (the others' true future) and "static".
 
-The oracle (`predictor="oracle"`) gets the others' true future, by one of two means:
-- backends that can be cloned (highway: the whole simulator deep-copies, RNG included) get a
-  look-ahead: at each prediction step a copy of the live simulator is stepped `horizon` frames with
-  the ego on the simulator's own model, and the others' positions in it are the forecast. Exact
-  whenever the background does not react to the ego (`reaction = "ignore"`); otherwise exact up to
-  how the others react to the ego's actual, rather than the model's, driving over those seconds.
-- others (SUMO: libsumo cannot be copied in-process) get a replay: a reference rollout of the same
-  seed with the ego on the simulator's own model is recorded first; an agent's forecast is its
-  reference future, shifted to start where the agent really is, if the reference had it within 1 m
-  of its real position now, and constant velocity otherwise. Exact with `reaction = "ignore"` (the
-  background then never depends on the ego); with a reacting background the traffic of the two
-  runs drifts apart, and the oracle falls back to constant velocity for the agents that drifted.
-Its online error is reported like any predictor's, so how exact it was is visible in every scorecard.
+The oracle (`predictor="oracle"`, `BranchOracle`) is exact on every backend and under every background
+`reaction`, wherever an exact forecast exists: its forecast at frame k is what the other agents then do
+in the same episode. It reads them from a branch of the live simulator (highway: a deep copy, RNG
+included; SUMO: a fork of the `SumoProcess` worker) rolled ahead `oracle_window_s` with the ego driven
+exactly as the episode drives it: a copy of the planner, the loop's own `LoopClock`, forecasts read
+from a guess of the branch's future. Under a reacting background the others' future depends on the
+ego's, which depends on the forecasts: the oracle iterates guess -> branch -> guess until the ego,
+fed the branch's own future, gives the same commands again (checked by replanning over the branch's
+recorded frames, without simulating). Then (the backends being deterministic) the branch's future
+is the one it was planned on, a fixed point, and the episode, whose planner is fed that same
+future, repeats the branch frame for frame.
+
+One converged branch serves every prediction for the next `window - (horizon + 2 planning
+horizons)` frames (a prediction needs its horizon, the ego's planning horizon beyond it, and one
+more for the ego's decisions there to rest on a settled future); the oracle then branches again
+from the live state, warm-started from the last branch. Where no fixed point exists (a
+self-defeating forecast: told that a scooter cuts in, the ego holds back and the scooter does
+not cut in; told it does not, the ego closes up and it does) the iteration cycles; the oracle
+stops there (`cycles`) or after `max_iterations` (`unconverged`) and the forecast is inexact for
+those seconds. It checks that the episode did follow the branch (`mismatches`: frames where the
+live state differed from it; each starts a new branch). Its online error is scored like any
+predictor's, so how exact it was is visible in every scorecard.
+
+"static" (`StaticForecast`): the sampling planner with no prediction: everyone stays put.
 """
 
 from __future__ import annotations
 
 import copy
+import dataclasses
+from typing import Any
 
 import numpy as np
 
-from simharness.planners import rows_of
+from simharness.closedloop.config import LoopClock
+from simharness.planners import Planner
 from simharness.scene import Forecast, Scene
-
-# ---------------------------------------------------------------------- the oracle
-CLONABLE_BACKENDS = ("highway",)  # simulators that copy.deepcopy exactly (state and RNG)
-
-
-def _constant_velocity(history: Scene, targets: np.ndarray, horizon: int) -> np.ndarray:
-    """(M, horizon, 2) constant-velocity extrapolation of history rows `targets` from their last step."""
-    vel = history.velocity[targets, -1]
-    steps = (np.arange(horizon) + 1)[None, :, None] * history.dt
-    return (history.xy[targets, -1][:, None] + vel[:, None] * steps).astype(np.float32)
+from simharness.sim.base import EgoCommand, Frame
 
 
 class StaticForecast:
@@ -44,51 +49,172 @@ class StaticForecast:
         return Forecast(agent_id=history.agent_id[targets], mean=mean.astype(np.float32), dt=history.dt)
 
 
-class ReplayOracle:
-    """True futures from a reference recording of the same seed (see the module docstring).
+def near_targets(frame: Frame, radius: float) -> np.ndarray:
+    """(M,) rows of the agents within `radius` m of the ego in this frame, the ego excluded (the loop's targets)."""
+    near = np.linalg.norm(frame.xy - frame.xy[frame.ego], axis=-1) <= radius
+    near[frame.ego] = False
+    return np.flatnonzero(near)
 
-    reference: the recorded Scene; `history.frame0 + history.num_frames - 1` is "now" in its frames.
-    tolerance: m; agents the reference placed farther than this from where they are now fall back
-    to constant velocity.
+
+@dataclasses.dataclass
+class Track:
+    """Every agent's position but the ego's over consecutive frames: ids (N,) sorted; xy (N, F, 2) float32,
+    nan where absent; column 0 is episode frame `start`."""
+
+    ids: np.ndarray
+    xy: np.ndarray
+    start: int
+
+    @classmethod
+    def of(cls, frames: list[Frame], start: int) -> Track:
+        others = [np.arange(f.num_agents) != f.ego for f in frames]
+        ids = np.unique(np.concatenate([f.agent_id[o] for f, o in zip(frames, others, strict=True)]))
+        xy = np.full((len(ids), len(frames), 2), np.nan, np.float32)
+        for c, (f, o) in enumerate(zip(frames, others, strict=True)):  # one vectorised assignment per frame
+            xy[np.searchsorted(ids, f.agent_id[o]), c] = f.xy[o]
+        return cls(ids, xy, start)
+
+    @property
+    def end(self) -> int:
+        """Episode frame of the last column."""
+        return self.start + self.xy.shape[1] - 1
+
+    def future(self, frame: Frame, targets: np.ndarray, k: int, horizon: int, dt: float) -> np.ndarray:
+        """(M, horizon, 2) float32 positions at frames k+1 .. k+horizon of the agents in rows `targets` of frame k.
+
+        Beyond the track's end: extrapolated at the track's last velocity; agents the track lacks:
+        constant velocity from `frame` (frame k).
+        """
+        ids = frame.agent_id[targets]
+        rows = np.minimum(np.searchsorted(self.ids, ids), len(self.ids) - 1)
+        known = self.ids[rows] == ids
+        last = self.xy.shape[1] - 1
+        cols = k + 1 + np.arange(horizon) - self.start
+        out = self.xy[rows][:, np.clip(cols, 0, last)]  # (M, horizon, 2)
+        beyond = cols > last
+        if beyond.any() and last >= 1:
+            vel = self.xy[rows, last] - self.xy[rows, last - 1]  # m per frame
+            out[:, beyond] = self.xy[rows, last][:, None] + (cols[beyond] - last)[None, :, None] * vel[:, None]
+        hd = frame.heading[targets]
+        v = frame.speed[targets, None] * np.stack([np.cos(hd), np.sin(hd)], -1)
+        steps = (np.arange(horizon) + 1)[None, :, None] * dt
+        fallback = frame.xy[targets][:, None] + v[:, None] * steps
+        bad = ~known[:, None] | np.isnan(out).any(-1)
+        return np.where(bad[..., None], fallback, out).astype(np.float32)
+
+    def agrees(self, other: Track, frames: int) -> bool:
+        """Whether both tracks hold the same agents at the same positions over their first `frames` columns
+        (both starting at the same frame)."""
+        a, b = self.xy[:, :frames], other.xy[:, :frames]
+        pa, pb = ~np.isnan(a[..., 0]).all(1), ~np.isnan(b[..., 0]).all(1)  # agents present at all in the span
+        if self.start != other.start or a.shape[1] != b.shape[1] or pa.sum() != pb.sum():
+            return False
+        return bool((self.ids[pa] == other.ids[pb]).all() and np.array_equal(a[pa], b[pb], equal_nan=True))
+
+    def matches(self, frame: Frame, k: int) -> bool:
+        """Whether the others in frame k of the episode are exactly column k of the track (agents, positions)."""
+        c = k - self.start
+        if not 0 <= c < self.xy.shape[1]:
+            return False
+        o = np.arange(frame.num_agents) != frame.ego
+        ids = frame.agent_id[o]
+        if (~np.isnan(self.xy[:, c, 0])).sum() != len(ids):
+            return False
+        rows = np.minimum(np.searchsorted(self.ids, ids), len(self.ids) - 1)
+        return bool((self.ids[rows] == ids).all() and (self.xy[rows, c] == frame.xy[o]).all())
+
+
+class BranchOracle:
+    """The exact oracle (see the module docstring). The episode calls `forecast` instead of `predict`.
+
+    horizon: forecast frames; plan_frames: frames of the forecast the planner uses; radius: m (targets);
+    window: frames each branch is rolled ahead; max_iterations: guess -> branch rounds per branch.
+    `stats`: branches, iterations, cycles (no fixed point), unconverged, mismatches (see the module docstring).
     """
 
-    def __init__(self, reference: Scene, tolerance: float = 1.0) -> None:
-        self.reference = reference
-        self.tolerance = tolerance
+    def __init__(self, dt: float, horizon: int, plan_frames: int, radius: float, window: int,
+                 max_iterations: int = 4) -> None:
+        self.dt, self.horizon, self.plan_frames, self.radius = dt, horizon, plan_frames, radius
+        self.window = max(window, horizon + 2 * plan_frames + 1)
+        self.max_iterations = max_iterations
+        self.track: Track | None = None
+        self.stats = {"branches": 0, "iterations": 0, "cycles": 0, "unconverged": 0, "mismatches": 0}
 
-    def predict(self, history: Scene, targets: np.ndarray, horizon: int) -> Forecast:
-        """Forecast (M, horizon, 2) of history rows `targets`."""
-        targets = np.asarray(targets, int)
-        now = history.frame0 + history.num_frames - 1
-        ref = self.reference
-        rows = rows_of(ref.agent_id, history.agent_id[targets])
-        cols = np.minimum(now + np.arange(horizon + 1), ref.num_frames - 1)  # now, then the future
-        inside = (now + np.arange(horizon + 1)) < ref.num_frames
-        r = np.maximum(rows, 0)
-        path = ref.xy[r][:, cols]  # (M, horizon + 1, 2)
-        ok = (rows >= 0)[:, None] & inside[None] & ref.valid[r][:, cols]
-        offset = history.xy[targets, -1] - path[:, 0]
-        agree = ok[:, 0] & (np.linalg.norm(offset, axis=-1) <= self.tolerance)
-        mean = np.where((ok[:, 1:] & agree[:, None])[..., None], path[:, 1:] + offset[:, None],
-                        _constant_velocity(history, targets, horizon))
-        return Forecast(agent_id=history.agent_id[targets], mean=mean.astype(np.float32), dt=history.dt)
+    def _forecast_from(self, track: Track, frame: Frame, k: int) -> Forecast | None:
+        rows = near_targets(frame, self.radius)
+        if rows.size == 0:
+            return None
+        return Forecast(agent_id=frame.agent_id[rows], mean=track.future(frame, rows, k, self.horizon, self.dt),
+                        dt=self.dt)
+
+    def forecast(self, k: int, frame: Frame, sim: Any, planner: Planner, clock: LoopClock) -> Forecast | None:
+        """The others' true future at frame k of the live episode (sim, planner, clock: its live state)."""
+        fresh = self.track is not None and self.track.end - k >= self.horizon + 2 * self.plan_frames
+        if fresh and not self.track.matches(frame, k):
+            self.stats["mismatches"] += 1
+            fresh = False
+        if not fresh:
+            self._branch_out(k, frame, sim, planner, clock)
+        return self._forecast_from(self.track, frame, k)
+
+    def _branch_out(self, k: int, frame: Frame, sim: Any, planner: Planner, clock: LoopClock) -> None:
+        """Iterate guess -> branch from the live state until the branch's future is the one its ego was
+        planned on (checked by replanning over the branch's frames: no simulation); keep the last branch."""
+        guess = self.track if self.track is not None else Track.of([frame], k)
+        # The forecasts this branch will serve need the others' truth up to window - 2 planning horizons,
+        # hence the ego's commands up to there; later ones rest on forecasts extrapolated past the window.
+        settled = self.window - 2 * self.plan_frames
+        seen: list[list[EgoCommand | None]] = []
+        self.stats["branches"] += 1
+        for _ in range(self.max_iterations):
+            track, frames, commands = self._rollout(k, frame, sim, planner, clock, guess)
+            self.stats["iterations"] += 1
+            if self._replan(k, frames, planner, clock, track, commands[:settled]):
+                break  # a fixed point: planned on its own future, the ego does what it did
+            if commands[:settled] in seen:  # a cycle: no forecast comes true there (a self-defeating one)
+                self.stats["cycles"] += 1
+                break
+            seen.append(commands[:settled])
+            guess = track
+        else:
+            self.stats["unconverged"] += 1
+        self.track = track
+
+    def _drive(self, j: int, k: int, f: Frame, planner: Planner, clock: LoopClock, guess: Track) -> EgoCommand | None:
+        """The ego's command at frame j of a branch started at frame k, forecasts read from `guess`."""
+        if j > k and not clock.tick(f.ego >= 0):  # the episode ticked frame k already
+            return None
+        if clock.due(j):
+            clock.issue(j, self._forecast_from(guess, f, j))
+        return planner.plan(scene_of(f, self.dt), clock.current(j))
+
+    def _rollout(self, k: int, frame: Frame, sim: Any, planner: Planner, clock: LoopClock, guess: Track
+                 ) -> tuple[Track, list[Frame], list[EgoCommand | None]]:
+        """One branch of `window` frames from the live state, the ego planned on forecasts read from `guess`."""
+        branch = sim.branch()
+        planner, clock = copy.deepcopy(planner), copy.deepcopy(clock)
+        frames, commands = [frame], []
+        try:
+            for j in range(k, k + self.window):  # frames are sequential: the loop itself, as in the episode
+                commands.append(self._drive(j, k, frames[-1], planner, clock, guess))
+                frames.append(branch.step(commands[-1]))
+        finally:
+            branch.close()
+        return Track.of(frames, k), frames, commands
+
+    def _replan(self, k: int, frames: list[Frame], planner: Planner, clock: LoopClock, track: Track,
+                commands: list[EgoCommand | None]) -> bool:
+        """Whether the ego, fed forecasts read from `track`, gives `commands` again over the branch's frames."""
+        planner, clock = copy.deepcopy(planner), copy.deepcopy(clock)
+        for i, command in enumerate(commands):  # stops at the first command that differs
+            if self._drive(k + i, k, frames[i], planner, clock, track) != command:
+                return False
+        return True
 
 
-class LookaheadOracle:
-    """True futures from a copy of the live simulator stepped ahead (see the module docstring)."""
-
-    def __init__(self) -> None:
-        self.sim = None  # set by `simulate` once the simulator exists
-
-    def predict(self, history: Scene, targets: np.ndarray, horizon: int) -> Forecast:
-        """Forecast (M, horizon, 2) of history rows `targets`; constant velocity for agents that leave."""
-        targets = np.asarray(targets, int)
-        clone = copy.deepcopy(self.sim)
-        ids = history.agent_id[targets]
-        mean = _constant_velocity(history, targets, horizon)
-        for f in range(horizon):  # frames of the copy; agents matched by id inside, vectorised
-            frame = clone.step(None)
-            hit = rows_of(frame.agent_id, ids)
-            mean[hit >= 0, f] = frame.xy[hit[hit >= 0]]
-        return Forecast(agent_id=ids, mean=mean, dt=history.dt)
-
+def scene_of(frame: Frame, dt: float) -> Scene:
+    """One frame as a one-column Scene (the planner's "now"), built directly: no id matching needed."""
+    return Scene(xy=frame.xy[:, None], heading=frame.heading[:, None], speed=frame.speed[:, None],
+                 valid=np.ones((frame.num_agents, 1), bool), agent_id=frame.agent_id, agent_type=frame.agent_type,
+                 length=frame.length, width=frame.width, dt=dt, ego=frame.ego,
+                 extra={k: v[:, None] for k, v in frame.extra.items()})

@@ -94,15 +94,15 @@ def parse_grid(texts: list[str]) -> list[Perturbation]:
     return [Perturbation.from_items(g, f"--perturb {g}") for g in grid]
 
 
-def perturb(forecast: Forecast, history: Scene, targets: np.ndarray, p: Perturbation,
+def perturb(forecast: Forecast, now_xy: np.ndarray, agent_type: np.ndarray, p: Perturbation,
             rng: np.random.Generator) -> Forecast:
     """One forecast degraded by `p` (all but latency, which needs the past: see `PerturbedPredictor`).
 
-    forecast: M agents x F steps; history/targets: what it was made from (targets (M,) rows of history,
-    giving each agent's position now and its type). Returns a new Forecast (M' <= M agents).
+    forecast: M agents x F steps; now_xy (M, 2) m: each agent's position now; agent_type (M,) codes.
+    Returns a new Forecast (M' <= M agents).
     """
     mean = forecast.mean.astype(np.float64)  # (M, F, 2)
-    now = history.xy[targets, -1].astype(np.float64)[:, None]  # (M, 1, 2)
+    now = np.asarray(now_xy, np.float64)[:, None]  # (M, 1, 2)
     disp = (mean - now) * p.speed
     if p.heading:
         c, s = math.cos(math.radians(p.heading)), math.sin(math.radians(p.heading))
@@ -117,7 +117,7 @@ def perturb(forecast: Forecast, history: Scene, targets: np.ndarray, p: Perturba
         sigma_rho = np.concatenate([sigma_rho[..., :2] * p.sigma, sigma_rho[..., 2:]], -1)
     keep = np.ones(m, bool)
     if p.drop:
-        keep = history.agent_type[targets] != int(AgentType.parse(p.drop))
+        keep = np.asarray(agent_type) != int(AgentType.parse(p.drop))
     return Forecast(agent_id=forecast.agent_id[keep], mean=mean[keep].astype(np.float32), dt=forecast.dt,
                     sigma_rho=None if sigma_rho is None else sigma_rho[keep].astype(np.float32))
 
@@ -155,10 +155,15 @@ class PerturbedPredictor:
     def predict(self, history: Scene, targets: np.ndarray, horizon: int) -> Forecast:
         """As the inner predictor's, degraded: (M' <= M, horizon, 2)."""
         targets = np.asarray(targets, int)
-        out = perturb(self.inner.predict(history, targets, horizon), history, targets, self.p, self.rng)
+        return self.degrade(self.inner.predict(history, targets, horizon), history.xy[targets, -1],
+                            history.agent_type[targets], history.frame0 + history.num_frames - 1, horizon)
+
+    def degrade(self, forecast: Forecast, now_xy: np.ndarray, agent_type: np.ndarray, now: int,
+                horizon: int) -> Forecast:
+        """A forecast made at frame `now` (now_xy (M, 2), agent_type (M,) of its agents), degraded."""
+        out = perturb(forecast, now_xy, agent_type, self.p, self.rng)
         if self.p.latency <= 0:
             return out
-        now = history.frame0 + history.num_frames - 1
         self._past = [(k, f) for k, f in self._past if k >= now - self.p.latency - horizon] + [(now, out)]
         due = [(k, f) for k, f in self._past if k <= now - self.p.latency]
         made, stale = due[-1] if due else self._past[0]  # the latest made long enough ago (or the oldest kept)

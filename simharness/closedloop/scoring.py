@@ -1,4 +1,19 @@
-"""Per-episode scores of the closed loop, from the recorded Scene only, and the online forecast error."""
+"""Per-episode scores of the closed loop, from the recorded Scene only; the online forecast error; the
+composite closed-loop score (nuPlan's closed-loop score adapted; formula in docs/closedloop.md).
+
+Composite, per episode (E episodes vectorise: every input (E,), output (E,)):
+
+    score = (1 - at_fault_collided) * (1 - left_drivable) * making_progress
+            * (5 * progress_ratio + 5 * ttc_ok + 2 * comfortable) / 12
+
+- at_fault_collided: the ego caused a collision (`safety.ego_at_fault`: ran into someone ahead, or
+  moved across the flow into them; being rear-ended or cut into while holding its line is not its fault);
+- left_drivable: a corner of the ego's box (shrunk by `DRIVABLE_TOLERANCE`) left the drivable area;
+- progress_ratio: the ego's progress over the traffic flow's (the mean speed of the vehicles within
+  `FLOW_RADIUS` m of the ego times the ego's time), capped at 1; making_progress: progress_ratio >= 0.2;
+- ttc_ok: no near miss (time-to-collision never below `LoopConfig.ttc_threshold`);
+- comfortable: peak |acceleration|, |jerk| and |lateral acceleration| within `COMFORT_BOUNDS` (nuPlan's).
+"""
 
 from __future__ import annotations
 
@@ -11,11 +26,63 @@ from simharness.closedloop.config import Issued, LoopConfig
 from simharness.metrics import collisions, comfort, displacement, safety
 from simharness.planners import rows_of
 from simharness.scene import AgentType, Scene
+from simharness.sim.base import RoadGeometry
 
 SCALARS = ("collided", "collisions", "at_fault_collided", "at_fault_collisions", "phantom_braking_s", "near_miss",
            "near_misses_per_min", "min_gap_m", "background_collisions", "background_collisions_per_1000_agent_min",
            "progress_m", "mean_speed", "time_stuck_s", "accel_rms", "jerk_rms", "lat_accel_max", "online_ade",
-           "online_fde", "online_ade_rmse", "online_fde_rmse", "realtime_factor")
+           "online_fde", "online_ade_rmse", "online_fde_rmse", "realtime_factor", "composite", "left_drivable",
+           "progress_ratio", "ttc_ok", "comfortable")
+
+COMPOSITE_WEIGHTS = {"progress": 5.0, "ttc": 5.0, "comfort": 2.0}  # nuPlan's weights for these three
+COMFORT_BOUNDS = {"accel_max": 4.05, "jerk_max": 8.37, "lat_accel_max": 4.89}  # m/s^2, m/s^3 (nuPlan's)
+MIN_PROGRESS_RATIO = 0.2  # below this share of the flow's progress the episode scores 0 (nuPlan's)
+FLOW_RADIUS = 30.0  # m: the vehicles whose speed is the traffic flow the ego's progress is measured against
+DRIVABLE_TOLERANCE = 0.2  # m: the ego's box is shrunk by this before testing it against the drivable area
+
+
+# ---------------------------------------------------------------------- the composite score
+def composite_score(at_fault_collided: np.ndarray, left_drivable: np.ndarray, progress_ratio: np.ndarray,
+                    ttc_ok: np.ndarray, comfortable: np.ndarray) -> np.ndarray:
+    """The composite closed-loop score in [0, 1] (module docstring). All inputs (E,) (bool or 0/1 floats;
+    progress_ratio in [0, 1]) -> (E,) float; a nan input gives nan."""
+    w = COMPOSITE_WEIGHTS
+    ratio = np.asarray(progress_ratio, np.float64)
+    gate = (1.0 - np.asarray(at_fault_collided, np.float64)) * (1.0 - np.asarray(left_drivable, np.float64))
+    gate = gate * np.where(np.isnan(ratio), np.nan, ratio >= MIN_PROGRESS_RATIO)
+    avg = (w["progress"] * ratio + w["ttc"] * np.asarray(ttc_ok, np.float64)
+           + w["comfort"] * np.asarray(comfortable, np.float64)) / sum(w.values())
+    return gate * avg
+
+
+def flow_progress(xy: np.ndarray, speed: np.ndarray, agent_type: np.ndarray, valid: np.ndarray, ego: int,
+                  dt: float, radius: float = FLOW_RADIUS) -> float:
+    """Metres the traffic around the ego covered in the ego's time: the mean speed of the vehicles
+    (pedestrians left out) within `radius` m of the ego over the ego's frames, times the ego's seconds.
+
+    xy (N, T, 2) m, speed (N, T) m/s, agent_type (N,), valid (N, T), ego row -> m; nan without any such vehicle.
+    """
+    near = valid & valid[ego][None] & (np.linalg.norm(xy - xy[ego][None], axis=-1) <= radius)
+    near[ego] = False
+    near &= (agent_type != int(AgentType.PEDESTRIAN))[:, None]
+    if not near.any():
+        return math.nan
+    return float(speed[near].mean() * max(int(valid[ego].sum()) - 1, 0) * dt)  # frames span (n - 1) dt
+
+
+def off_drivable(xy: np.ndarray, heading: np.ndarray, length: float, width: float, valid: np.ndarray,
+                 road: RoadGeometry, tolerance: float = DRIVABLE_TOLERANCE) -> np.ndarray:
+    """(T,) bool: frames where a corner of the ego's box, shrunk by `tolerance` m, is off the drivable area.
+
+    xy (T, 2) m, heading (T,) rad (the body's), length / width m, valid (T,); a road without drivable
+    polygons is taken as everywhere drivable.
+    """
+    if not road.drivable:
+        return np.zeros(valid.shape, bool)
+    ln, wd = np.full(len(xy), max(length - 2 * tolerance, 0.0)), np.full(len(xy), max(width - 2 * tolerance, 0.0))
+    corners = collisions.box_corners(xy, heading, ln, wd)  # (T, 4, 2)
+    return valid & ~road.on_road(corners).all(-1)
+
 
 
 
@@ -71,6 +138,15 @@ def score_episode(scene: Scene, issued: Issued, config: LoopConfig) -> dict[str,
     })
     c = comfort.comfort_summary(scene.speed[e], hd[e], va[e], dt)
     out.update({k: c[k] for k in ("accel_rms", "jerk_rms", "lat_accel_max", "accel_max", "jerk_max")})
+    road = RoadGeometry.from_dict(scene.meta["road"]) if "road" in scene.meta else RoadGeometry()
+    flow = flow_progress(xy, scene.speed, scene.agent_type, va, e, dt)
+    out["flow_progress_m"] = flow
+    out["progress_ratio"] = 1.0 if not flow > 0 else float(np.clip(out["progress_m"] / flow, 0.0, 1.0))
+    out["left_drivable"] = float(off_drivable(xy[e], bh[e], float(ln[e]), float(wd[e]), va[e], road).any())
+    out["ttc_ok"] = 1.0 - out["near_miss"]
+    out["comfortable"] = float(all(c[k] <= b for k, b in COMFORT_BOUNDS.items()))
+    out["composite"] = float(composite_score(out["at_fault_collided"], out["left_drivable"], out["progress_ratio"],
+                                             out["ttc_ok"], out["comfortable"]))
     out.update(online_errors(scene, issued))
     return out
 

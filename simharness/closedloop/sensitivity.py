@@ -33,7 +33,7 @@ METRICS = (("online_ade", "online_ade", "online ADE (m)"), ("online_fde", "onlin
            ("collision_rate", "collided", "collision rate"),
            ("at_fault_collision_rate", "at_fault_collided", "at-fault collision rate"),
            ("near_misses_per_min", "near_misses_per_min", "near misses / min"),
-           ("progress_m", "progress_m", "progress (m)"), ("composite_score", "composite_score", "composite score"))
+           ("progress_m", "progress_m", "progress (m)"), ("composite", "composite", "composite score"))
 
 
 def run_scores(job: EpisodeJob) -> dict[str, Any]:
@@ -52,7 +52,6 @@ def sensitivity(spec: ScenarioSpec, predictor: str, grid: Sequence[Perturbation]
     from tqdm import tqdm
 
     from simharness.executors import make_executor
-    from simharness.io.parquet import software_versions
 
     config = config or LoopConfig()
     if predictor in ("none", "blind"):
@@ -61,8 +60,7 @@ def sensitivity(spec: ScenarioSpec, predictor: str, grid: Sequence[Perturbation]
         from simharness.predictors import load_predictor
 
         load_predictor(predictor)  # a bad name fails now, before any process starts
-    spec = prepare_spec(spec)
-    jobs = [EpisodeJob(spec, int(s), predictor, config, keep_scene=False, perturbation=p) for p in grid for s in seeds]
+    jobs = sensitivity_jobs(spec, predictor, grid, seeds, config)
     t0 = time.perf_counter()
     scores: dict[str, list[dict[str, Any]]] = {p.label(): [] for p in grid}
     failed: list[str] = []
@@ -81,6 +79,24 @@ def sensitivity(spec: ScenarioSpec, predictor: str, grid: Sequence[Perturbation]
         bar.close()
     if failed:  # a figure over a silent subset of seeds would mislead
         raise SimulatorError(f"{len(failed)} episode(s) failed: " + "; ".join(failed[:3]))
+    result = summarise(prepare_spec(spec), predictor, grid, seeds, config, scores, time.perf_counter() - t0)
+    write_outputs(Path(out), result)
+    return result
+
+
+def sensitivity_jobs(spec: ScenarioSpec, predictor: str, grid: Sequence[Perturbation], seeds: Sequence[int],
+                     config: LoopConfig | None = None) -> list[EpisodeJob]:
+    """One episode job per (perturbation, seed), perturbation-major."""
+    spec = prepare_spec(spec)
+    return [EpisodeJob(spec, int(s), predictor, config or LoopConfig(), keep_scene=False, perturbation=p)
+            for p in grid for s in seeds]
+
+
+def summarise(spec: ScenarioSpec, predictor: str, grid: Sequence[Perturbation], seeds: Sequence[int],
+              config: LoopConfig, scores: dict[str, list[dict[str, Any]]], seconds: float) -> dict[str, Any]:
+    """Rows of CIs per perturbation from the episodes' scores ({label: [scores]}); what sensitivity.json holds."""
+    from simharness.io.parquet import software_versions
+
     rows = []
     for p in grid:
         eps = [e for e in sorted(scores[p.label()], key=lambda e: e["seed"]) if e.get("ego_present")]
@@ -90,13 +106,12 @@ def sensitivity(spec: ScenarioSpec, predictor: str, grid: Sequence[Perturbation]
         rows.append(row)
     info = {"scenario": spec.name, "config_hash": spec.config_hash(), "predictor": predictor,
             "seeds": [int(s) for s in seeds], "grid": [p.label() for p in grid], "loop": dataclasses.asdict(config),
-            "seconds": round(time.perf_counter() - t0, 3), "command": sys.argv, "versions": software_versions(),
+            "seconds": round(seconds, 3), "command": sys.argv, "versions": software_versions(),
             "bootstrap": {"resamples": 2000, "level": 0.95, "seed": 0}}
     result = {"info": info, "rows": rows, "monotone": {k: monotone(rows, k) for k in
                                                        ("collision_rate", "at_fault_collision_rate")},
               "episodes": [{"perturbation": p.label(), **e} for p in grid
                            for e in sorted(scores[p.label()], key=lambda e: e["seed"])]}
-    write_outputs(Path(out), result)
     return result
 
 

@@ -121,6 +121,13 @@ class HighwaySimulator:
             extra={"lateral_offset": s.y.astype(np.float32)}, events=events,
         )
 
+    def branch(self) -> HighwaySimulator:
+        """An independent copy of the running simulation (env, traffic and RNGs deep-copied): stepped with
+        the same ego commands it gives the same frames as the original would."""
+        import copy
+
+        return copy.deepcopy(self)
+
     def render(self) -> np.ndarray:
         """(H, W, 3) uint8 top-down view (highway-env's pygame renderer), headless; +y (left) up."""
         return self.env.render()

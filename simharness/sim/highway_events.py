@@ -32,7 +32,7 @@ ACTORS = {"brake": "truck", "cut_in": "motorcycle", "step_out": "pedestrian", "p
 CLEAR_LONG = 2.0  # m kept free ahead of and behind a placed actor (background agents there are removed)
 CLEAR_LAT = 0.3  # m kept free beside it
 KERB_GAP = 0.1  # m between a bus at the kerb and the carriageway edge
-MAX_SLIP = 0.5  # a scripted vehicle moves sideways at most this share of its forward speed
+MAX_SLIP = 0.8  # a scripted vehicle moves sideways at most this share of its forward speed (about 39 degrees)
 
 
 @dataclasses.dataclass
