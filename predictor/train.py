@@ -1,5 +1,8 @@
 """Training loop: Adam, MSE warm-up then bivariate Gaussian NLL, validation every epoch, best checkpoint.
 
+The learning rate follows a schedule (`lr_schedule`: cosine decay after a linear warm-up, by default; halving
+on a validation plateau; or constant), and training stops early when the validation criterion has not
+improved for `patience` epochs of the NLL phase; model.pt always holds the best epoch's weights.
 A run folder holds model.pt (best validation state_dict), config.json (model and window config, seed,
 data set hash, split, versions, best epoch) and log.csv (losses per epoch). Splits are by scene
 (predictor.split), the same that evaluation uses for its test split.
@@ -27,6 +30,31 @@ from simharness.errors import UserError
 from simharness.scene import Scene
 
 VAL_SAMPLES = 4000  # validation windows scored each epoch by the CLI (a fixed, seeded subset)
+LR_SCHEDULES = ("cosine", "plateau", "constant")
+LR_FLOOR = 0.05  # cosine decays to this fraction of the learning rate
+LR_WARMUP = 0.05  # fraction of the steps (at most one epoch) over which the cosine schedule ramps up
+
+
+def resolve_device(device: str) -> Any:
+    """"auto" (CUDA if torch sees a GPU, else the CPU), "cpu" or "cuda" -> torch.device; UserError otherwise."""
+    import torch
+
+    if device == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if device not in ("cpu", "cuda"):
+        raise UserError(f"unknown device {device!r}; expected auto, cpu or cuda")
+    if device == "cuda" and not torch.cuda.is_available():
+        raise UserError("--device cuda: torch sees no CUDA GPU here (a CPU-only torch, or no driver); use auto or cpu")
+    return torch.device(device)
+
+
+def lr_factor(step: int, total: int, warmup: int) -> float:
+    """The cosine schedule's multiplier of the learning rate at optimiser step `step` of `total`: linear from
+    1/warmup to 1 over `warmup` steps, then a cosine from 1 down to LR_FLOOR at the last step."""
+    if step < warmup:
+        return (step + 1) / warmup
+    frac = min(1.0, (step - warmup) / max(1, total - warmup))
+    return LR_FLOOR + (1 - LR_FLOOR) * 0.5 * (1 + math.cos(math.pi * frac))
 
 
 def open_data(data: Path) -> tuple[str, list[str], Any]:
@@ -56,7 +84,12 @@ def load_windows(data: Path, window: WindowConfig, progress: bool = True,
                                progress=progress)
 
 
-def _epoch_eval(model: Any, store: FeatureStore, idx: np.ndarray, batch_size: int) -> dict[str, float]:
+def _to(batch: dict[str, Any], device: Any) -> dict[str, Any]:
+    """A batch's tensors on `device` (as they are on the CPU)."""
+    return batch if device.type == "cpu" else {k: v.to(device, non_blocking=True) for k, v in batch.items()}
+
+
+def _epoch_eval(model: Any, store: FeatureStore, idx: np.ndarray, batch_size: int, device: Any) -> dict[str, float]:
     import torch
 
     from predictor.losses import gaussian_nll, mse
@@ -66,7 +99,7 @@ def _epoch_eval(model: Any, store: FeatureStore, idx: np.ndarray, batch_size: in
     model.eval()
     with torch.inference_mode():
         for i in range(0, len(idx), batch_size * 4):
-            b = store.batch(idx[i:i + batch_size * 4]).tensors()
+            b = _to(store.batch(idx[i:i + batch_size * 4]).tensors(), device)
             out = model(b)
             w = float(b["fut_valid"].sum())
             tot["mse"] += float(mse(out, b["fut"], b["fut_valid"])) * w
@@ -81,15 +114,17 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
           max_samples: int | None = None, window: WindowConfig | None = None,
           model_config: dict[str, Any] | None = None, threads: int | None = None,
           progress: bool = True, max_val_samples: int | None = None,
-          test_scenes: list[str] | None = None, cache_dir: Path | None = None,
-          init: str | Path | None = None) -> dict[str, Any]:
+          test_scenes: list[str] | None = None, cache_dir: Path | None = None, lr_schedule: str = "cosine",
+          patience: int | None = None, device: str = "cpu", init: str | Path | None = None) -> dict[str, Any]:
     """Train `model` on the train split of `data`, keep the best on the val split -> summary dict.
 
-    init: start from these weights instead of random ones (fine-tuning, e.g. sim-to-real): a run folder, or
-    "shipped" for predictor/weights/<model>; its model and model config must be this run's (`init_weights`).
-
-    Writes out/model.pt, out/config.json, out/log.csv. Returns {"best_epoch", "best_val", "val_history",
-    "train_samples", "samples_per_s", ...}.
+    lr_schedule: "cosine" (linear warm-up over LR_WARMUP of the steps, then cosine decay to LR_FLOOR x lr),
+    "plateau" (halve when an epoch does not improve validation) or "constant". patience: stop after this many
+    epochs of the NLL phase without a better validation criterion (None: run every epoch). device: "cpu",
+    "cuda" or "auto". init: start from these weights instead of random ones (fine-tuning, e.g. sim-to-real): a
+    run folder, or "shipped" for predictor/weights/<model>; its model and model config must be this run's
+    (`init_weights`). Writes out/model.pt (the best epoch's weights), out/config.json, out/log.csv. Returns
+    {"best_epoch", "best_val", "val_history", "epochs_run", "train_samples", "samples_per_s", ...}.
     """
     import torch
     from tqdm import tqdm
@@ -97,9 +132,12 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
     from predictor.losses import LOSSES, loss_for_epoch
     from predictor.models import build_model
 
-    if epochs < 1 or batch_size < 1 or not lr > 0 or warmup_epochs < 0:
+    if epochs < 1 or batch_size < 1 or not lr > 0 or warmup_epochs < 0 or (patience is not None and patience < 1):
         raise UserError(f"bad training settings: epochs {epochs}, batch size {batch_size}, lr {lr}, "
-                        f"warm-up {warmup_epochs}; expected positive numbers")
+                        f"warm-up {warmup_epochs}, patience {patience}; expected positive numbers")
+    if lr_schedule not in LR_SCHEDULES:
+        raise UserError(f"unknown learning-rate schedule {lr_schedule!r}; expected one of {', '.join(LR_SCHEDULES)}")
+    dev = resolve_device(device)
     # One thread unless asked (threads, else OMP_NUM_THREADS): it alone reaches ~1,400 samples/s on this kind of
     # CPU; two are faster only on an idle machine and 4x slower on a shared, loaded one (they spin-wait for a core).
     torch.set_num_threads(threads or int(os.environ.get("OMP_NUM_THREADS", 0)) or 1)
@@ -122,7 +160,14 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
             "horizon_grid": window.horizon_grid, **(model_config or {})}
     net = build_model(model, mcfg)
     init_info = init_weights(net, model, init) if init is not None else None
+    net = net.to(dev)
     opt = torch.optim.Adam(net.parameters(), lr=lr, fused=True)  # one kernel for all parameters
+    steps_per_epoch = math.ceil(len(train_idx) / batch_size)
+    total_steps = epochs * steps_per_epoch
+    warm = max(1, min(steps_per_epoch, round(LR_WARMUP * total_steps)))
+    # Per optimiser step (cosine) or per epoch on the validation criterion (plateau).
+    sched: Any = (torch.optim.lr_scheduler.LambdaLR(opt, lambda k: lr_factor(k, total_steps, warm))
+                  if lr_schedule == "cosine" else None)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     config = {"model": model, "model_config": net.cfg.to_dict(), "window": window.to_dict(),
@@ -130,8 +175,8 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
               "seed": seed, "data": str(data), "data_hash": key, "split": split,
               "train": {"epochs": epochs, "warmup_epochs": warmup_epochs, "batch_size": batch_size, "lr": lr,
                         "max_samples": max_samples, "train_samples": int(len(train_idx)),
-                        "val_samples": int(len(val_idx))},
-              "versions": versions()}
+                        "val_samples": int(len(val_idx)), "lr_schedule": lr_schedule, "patience": patience},
+              "device": dev.type, "versions": versions()}
     if init_info is not None:
         config["train"]["init"] = init_info
     if max_val_samples is not None:
@@ -141,20 +186,24 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
                    sort_keys=True).encode()).hexdigest()[:16]
     log = io.StringIO()
     writer = csv.writer(log)
-    writer.writerow(["epoch", "loss", "train_loss", "val_mse", "val_nll", "val_rmse_m", "seconds", "samples_per_s"])
-    best, best_epoch = math.inf, -1
-    history = [{"epoch": 0, "loss": "init", "train": math.nan, **_epoch_eval(net, store, val_idx, batch_size)}]
+    writer.writerow(["epoch", "loss", "train_loss", "val_mse", "val_nll", "val_rmse_m", "seconds", "samples_per_s",
+                     "lr"])
+    best, best_epoch, stale = math.inf, -1, 0
+    history = [{"epoch": 0, "loss": "init", "train": math.nan, **_epoch_eval(net, store, val_idx, batch_size, dev)}]
     samples_seen, train_time = 0, 0.0
     for epoch in range(epochs):
         kind = loss_for_epoch(epoch, warmup_epochs)
         if epoch == warmup_epochs:
-            best = math.inf  # the selection criterion switches from MSE to NLL here
+            best, stale = math.inf, 0  # the selection criterion switches from MSE to NLL here
+        if lr_schedule == "plateau" and epoch in (0, warmup_epochs):  # a fresh plateau for each criterion
+            sched = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, factor=0.5, patience=0)
+        epoch_lr = opt.param_groups[0]["lr"]
         order = rng.permutation(train_idx)
         t0, tot, nb = time.perf_counter(), 0.0, 0
         bar = tqdm(range(0, len(order), batch_size), desc=f"epoch {epoch + 1}/{epochs} {kind}", unit="batch",
                    disable=not progress, leave=False)
         for i in bar:
-            b = store.batch(order[i:i + batch_size]).tensors()
+            b = _to(store.batch(order[i:i + batch_size]).tensors(), dev)
             if hasattr(net, "training_step"):  # a model with its own update (Social-GAN: discriminator, variety loss)
                 loss = net.training_step(b, kind, opt)
             else:
@@ -162,6 +211,8 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
                 opt.zero_grad()
                 loss.backward()
                 opt.step()
+            if lr_schedule == "cosine":
+                sched.step()
             tot += float(loss.detach())
             nb += 1
             if nb % 20 == 0:
@@ -169,24 +220,32 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
         secs = time.perf_counter() - t0
         samples_seen += len(order)
         train_time += secs
-        val = _epoch_eval(net, store, val_idx, batch_size)
+        val = _epoch_eval(net, store, val_idx, batch_size, dev)
         crit = val[kind]
+        if lr_schedule == "plateau":
+            sched.step(crit)
         history.append({"epoch": epoch + 1, "loss": kind, "train": tot / max(nb, 1), **val})
         writer.writerow([epoch + 1, kind, f"{tot / max(nb, 1):.6f}", f"{val['mse']:.6f}", f"{val['nll']:.6f}",
-                         f"{math.sqrt(val['mse']):.4f}", f"{secs:.2f}", f"{len(order) / secs:.1f}"])
+                         f"{math.sqrt(val['mse']):.4f}", f"{secs:.2f}", f"{len(order) / secs:.1f}", f"{epoch_lr:.3g}"])
         if crit < best:
-            best, best_epoch = crit, epoch + 1
+            best, best_epoch, stale = crit, epoch + 1, 0
             save_checkpoint(net, out / "model.pt")
+        else:
+            stale += 1
         if progress:
             tqdm.write(f"epoch {epoch + 1}: {kind} train {tot / max(nb, 1):.3f}  val mse {val['mse']:.3f} "
                        f"nll {val['nll']:.3f}  ({len(order) / secs:.0f} samples/s)")
         atomic_write_text(out / "log.csv", log.getvalue())
+        if patience is not None and epoch >= warmup_epochs and stale >= patience:
+            if progress:
+                tqdm.write(f"early stop after epoch {epoch + 1}: no better validation {kind} for {stale} epochs")
+            break
     if best_epoch < 0:  # every validation loss was NaN: no checkpoint, so no run folder either
         (out / "log.csv").unlink(missing_ok=True)
         raise UserError(f"{out}: training diverged (validation loss NaN in every epoch); nothing saved: lower --lr")
-    config["best_epoch"], config["best_val"] = best_epoch, best
+    config["best_epoch"], config["best_val"], config["epochs_run"] = best_epoch, best, len(history) - 1
     atomic_write_text(out / "config.json", json.dumps(config, indent=1, sort_keys=True) + "\n")
-    return {"best_epoch": best_epoch, "best_val": best, "val_history": history,
+    return {"best_epoch": best_epoch, "best_val": best, "val_history": history, "epochs_run": len(history) - 1,
             "train_samples": int(len(train_idx)), "samples_per_s": samples_seen / max(train_time, 1e-9),
             "out": str(out), "config": config}
 
@@ -229,12 +288,14 @@ def train_command(args: argparse.Namespace) -> int:
                 batch_size=args.batch_size, lr=args.lr, seed=args.seed, max_samples=args.max_samples,
                 max_val_samples=VAL_SAMPLES, test_scenes=getattr(args, "test_scenes", None),
                 window=protocol_window(getattr(args, "protocol", None)),
-                model_config={"residual": bool(getattr(args, "residual", True))}, init=getattr(args, "init", None))
+                model_config={"residual": bool(getattr(args, "residual", True))},
+                lr_schedule=getattr(args, "lr_schedule", "cosine"), patience=getattr(args, "patience", None),
+                device=getattr(args, "device", "auto"), init=getattr(args, "init", None))
     if set(res["config"]["split"]["val"]) & set(res["config"]["split"]["train"]):
         print(f"note: one scene left to train on, so validation (checkpoint choice) used the training scene(s) "
               f"{', '.join(res['config']['split']['train'])}")
     kind = "nll" if res["best_epoch"] > args.warmup_epochs else "mse"
-    print(f"{args.model}: best epoch {res['best_epoch']} (val {kind} {res['best_val']:.3f}), "
+    print(f"{args.model}: best epoch {res['best_epoch']} of {res['epochs_run']} (val {kind} {res['best_val']:.3f}), "
           f"{res['train_samples']} training windows, {res['samples_per_s']:.0f} samples/s -> {args.out}")
     return 0
 

@@ -49,6 +49,8 @@ class Profile:
     epochs / warmup_epochs (MSE before the NLL) / batch_size / lr: as in predictor.train.
     max_samples / max_val_samples: caps on training / validation windows (drawn with the seed), None for all.
     stride: recorded frames between training windows ("now"s); 1 uses every frame.
+    residual: means as a correction to constant velocity (predictor.models.config); lr_schedule / patience:
+    the learning-rate schedule and early stopping of predictor.train.
     """
 
     name: str
@@ -61,6 +63,8 @@ class Profile:
     max_val_samples: int | None = None
     seed: int = 0
     residual: bool = True
+    lr_schedule: str = "cosine"
+    patience: int | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -109,7 +113,8 @@ def run_method(job: MethodJob) -> dict[str, Any]:
         res = train(Path(job.data), model=job.method, out=out, epochs=p.epochs, warmup_epochs=p.warmup_epochs,
                     batch_size=p.batch_size, lr=p.lr, seed=p.seed, max_samples=p.max_samples,
                     window=protocol_window(job.protocol, stride=p.stride), threads=1, progress=False,
-                    max_val_samples=p.max_val_samples, model_config={"residual": p.residual})
+                    max_val_samples=p.max_val_samples, model_config={"residual": p.residual},
+                    lr_schedule=p.lr_schedule, patience=p.patience, device="auto")
         predictor = ModelPredictor.from_run(out)
         row.update(train_s=round(time.perf_counter() - t0, 2),
                    params=int(sum(t.numel() for t in predictor.model.parameters())),

@@ -134,6 +134,13 @@ def build_parser() -> argparse.ArgumentParser:
                    help="train on this evaluation protocol's windows (eth-ucy: 8 + 12 frames at 2.5 Hz; "
                         "apolloscape: 3 + 3 at 2 Hz); "
                         "default 3 s + 5 s at 5 Hz")
+    t.add_argument("--lr-schedule", choices=["cosine", "plateau", "constant"], default="cosine",
+                   help="cosine decay after a linear warm-up (default), halve on a validation plateau, or constant")
+    t.add_argument("--patience", type=int, default=3,
+                   help="stop after this many epochs without a better validation NLL (default 3; the best "
+                        "epoch's weights are kept)")
+    t.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"],
+                   help="auto (default): CUDA when torch sees a GPU, else the CPU")
     t.add_argument("--residual", action=argparse.BooleanOptionalAction, default=True,
                    help="predict a correction to constant-velocity extrapolation (default) or, with --no-residual, "
                         "the means directly as in the paper")

@@ -72,7 +72,7 @@ class CSLSTM(nn.Module):
         h = nbr.new_zeros(b * k, self.cfg.encoder)
         if have.numel():  # only real neighbours are encoded
             h = h.index_copy(0, have, self._encode(nbr.reshape(b * k, *nbr.shape[2:]).index_select(0, have)))
-        slot = torch.arange(b).repeat_interleave(k) * (g + 1) + torch.where(flat >= 0, flat, g)
+        slot = torch.arange(b, device=flat.device).repeat_interleave(k) * (g + 1) + torch.where(flat >= 0, flat, g)
         pooled = h.new_zeros(b * (g + 1), h.shape[1]).index_add(0, slot, h)  # row g of each sample: "no cell"
         return pooled.view(b, g + 1, -1)[:, :g].reshape(b, gx, gy, -1).permute(0, 3, 1, 2)
 

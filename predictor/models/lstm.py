@@ -23,11 +23,11 @@ class _ConstantInputLSTM(torch.autograd.Function):
     def forward(ctx: Any, gx: torch.Tensor, w_hh: torch.Tensor, steps: int) -> torch.Tensor:
         b, hd = gx.shape[0], w_hh.shape[1]
         # The g gate's pre-activation doubled: one sigmoid over all four gates gives tanh(g) as 2 u - 1.
-        two = torch.ones(4, 1, dtype=gx.dtype)
+        two = torch.ones(4, 1, dtype=gx.dtype, device=gx.device)
         two[2] = 2.0
         gx2 = (gx.view(b, 4, hd) * two).view(b, 4 * hd)
         whh2_t = (w_hh.view(4, hd, hd) * two[:, :, None]).view(4 * hd, hd).t()
-        neg = torch.tensor([-2.0, 0.0, 0.0, -1.0], dtype=gx.dtype)[:, None]
+        neg = torch.tensor([-2.0, 0.0, 0.0, -1.0], dtype=gx.dtype, device=gx.device)[:, None]
         # Time-major buffers: each step reads and writes contiguous blocks. The cell state is kept doubled (c2 = 2c)
         # so that tanh(c) = 2 sigmoid(c2) - 1 needs no scaling: seven operations a step.
         act = gx.new_empty(steps, b, 4, hd)  # sigmoid of i, f, 2g, o

@@ -138,7 +138,8 @@ class SocialGAN(nn.Module):
         cfg = self.cfg
         b = ctx.shape[0]
         if z is None:
-            z = torch.randn(b, k, cfg.noise_dim, generator=generator, dtype=ctx.dtype)
+            # Drawn on the CPU and moved: the same seeded noise on any device.
+            z = torch.randn(b, k, cfg.noise_dim, generator=generator, dtype=ctx.dtype).to(ctx.device)
         h = torch.cat([ctx[:, None].expand(-1, k, -1), z], -1).reshape(b * k, -1)
         c = torch.zeros_like(h)
         xy, _ = positions(hist, 1.0)
@@ -175,13 +176,16 @@ class SocialGAN(nn.Module):
         disc = self.discriminator
         if self._d_opt is None:
             self._d_opt = torch.optim.Adam(disc.parameters(), lr=opt.param_groups[0]["lr"])
+        for group in self._d_opt.param_groups:  # the discriminator follows the generator's learning-rate schedule
+            group["lr"] = opt.param_groups[0]["lr"]
         b = fut.shape[0]
         # Generated futures are scored only where the real one is known: fill unknown steps with the truth's zeros.
         keep = mask[..., None].to(fut.dtype)
         ctx = self._context(batch)  # once: the discriminator's fake and the generator's samples share it
         with torch.no_grad():
             fake = self._decode(ctx.detach(), batch["hist"], 1)[:, 0] * keep
-        real_label, fake_label = torch.empty(b).uniform_(0.7, 1.2), torch.empty(b).uniform_(0.0, 0.3)
+        real_label = torch.empty(b).uniform_(0.7, 1.2).to(fut.device)
+        fake_label = torch.empty(b).uniform_(0.0, 0.3).to(fut.device)
         d_loss = (fn.binary_cross_entropy_with_logits(disc(torch.cat([hist_xy, fut], 1)), real_label)
                   + fn.binary_cross_entropy_with_logits(disc(torch.cat([hist_xy, fake], 1)), fake_label))
         self._d_opt.zero_grad()
@@ -190,14 +194,15 @@ class SocialGAN(nn.Module):
 
         # The variety loss's gradient flows through each target's best sample only: all K are decoded without
         # gradients to find it, then the best and the first (the adversarial loss's) again with them.
-        z = torch.randn(b, self.cfg.variety_k, self.cfg.noise_dim, dtype=ctx.dtype)
+        z = torch.randn(b, self.cfg.variety_k, self.cfg.noise_dim, dtype=ctx.dtype).to(ctx.device)
         with torch.no_grad():
             samples = self._decode(ctx.detach(), batch["hist"], self.cfg.variety_k, z=z)
             m = mask[:, None].to(samples.dtype)
             best = ((((samples - fut[:, None]) ** 2).sum(-1) * m).sum(-1) / m.sum(-1).clamp_min(1)).argmin(1)
-        chosen = self._decode(ctx, batch["hist"], 2, z=torch.stack([z[torch.arange(b), best], z[:, 0]], 1))
+        pick = torch.stack([z[torch.arange(b, device=z.device), best], z[:, 0]], 1)
+        chosen = self._decode(ctx, batch["hist"], 2, z=pick)
         adv = fn.binary_cross_entropy_with_logits(disc(torch.cat([hist_xy, chosen[:, 1] * keep], 1)),
-                                                  torch.empty(b).uniform_(0.7, 1.2))
+                                                  torch.empty(b).uniform_(0.7, 1.2).to(fut.device))
         g_loss = variety_loss(chosen[:, :1], fut, mask) + self.cfg.adv_weight * adv
         opt.zero_grad()
         g_loss.backward()

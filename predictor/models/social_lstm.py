@@ -48,7 +48,7 @@ def social_pairs(pos: torch.Tensor, present: torch.Tensor, grid: tuple[int, int]
     iy = torch.floor((rel[..., 1] + extent[1]) / (2 * extent[1]) * grid[1]).long()
     a = pos.shape[1]
     inside = ((ix >= 0) & (ix < grid[0]) & (iy >= 0) & (iy < grid[1]) & present[:, :, None] & present[:, None, :]
-              & ~torch.eye(a, dtype=torch.bool))
+              & ~torch.eye(a, dtype=torch.bool, device=pos.device))
     b_, i_, j_ = torch.nonzero(inside, as_tuple=True)
     cell = ix[b_, i_, j_] * grid[1] + iy[b_, i_, j_]
     return (b_ * a + i_) * (grid[0] * grid[1]) + cell, b_ * a + j_
@@ -91,9 +91,10 @@ class SocialLSTM(nn.Module):
         order = torch.argsort(key, stable=True)
         key, agent, src, cell = key[order], agent[order], src[order], cell[order]
         counts = torch.bincount(key, minlength=steps * g)
-        rank = torch.arange(key.numel()) - (torch.cumsum(counts, 0) - counts).index_select(0, key)
+        rank = torch.arange(key.numel(), device=key.device) - (torch.cumsum(counts, 0) - counts).index_select(0, key)
         widths = counts.view(steps, g).amax(1).clamp_min(1)
-        offsets = torch.cat([torch.zeros(1, dtype=torch.long), torch.cumsum(counts.view(steps, g).sum(1), 0)])
+        per_step = torch.cumsum(counts.view(steps, g).sum(1), 0)
+        offsets = torch.cat([torch.zeros(1, dtype=torch.long, device=key.device), per_step])
         return agent, src, cell * widths.index_select(0, key // g) + rank, offsets, widths
 
     def encode(self, omega: torch.Tensor) -> torch.Tensor:
@@ -111,7 +112,8 @@ class SocialLSTM(nn.Module):
         metres, present = positions(omega, 1.0)
         rows = torch.nonzero(present.any(2).reshape(-1)).squeeze(1)
         n = rows.numel()
-        compact = torch.full((b * a,), -1, dtype=torch.long).index_copy_(0, rows, torch.arange(n))
+        compact = torch.full((b * a,), -1, dtype=torch.long, device=rows.device).index_copy_(
+            0, rows, torch.arange(n, device=rows.device))
         agent, src, slot, offsets, widths = self.pair_layout(metres, present)
         offsets, widths = offsets.tolist(), widths.tolist()
         agent, src = compact.index_select(0, agent), compact.index_select(0, src)

@@ -132,8 +132,8 @@ class TraPHic(nn.Module):
         # by kx - 1 (ky - 1) cells every tap lands inside, and the conv's output is a window of it.
         taps = (hj @ conv1.weight.permute(1, 2, 3, 0).reshape(c_in, kx * ky * c_out)).view(-1, kx * ky, c_out)
         sel = flat.index_select(0, rows)
-        ox = (sel // gy)[:, None] - torch.arange(kx).repeat_interleave(ky) + (kx - 1)  # (n, kx * ky)
-        oy = (sel % gy)[:, None] - torch.arange(ky).repeat(kx) + (ky - 1)
+        ox = (sel // gy)[:, None] - torch.arange(kx, device=sel.device).repeat_interleave(ky) + (kx - 1)  # (n, kx * ky)
+        oy = (sel % gy)[:, None] - torch.arange(ky, device=sel.device).repeat(kx) + (ky - 1)
         wx, wy = gx + kx - 1, gy + ky - 1
         slot = ((rows // k)[:, None] * wx + ox) * wy + oy
         grown = taps.new_zeros(b * wx * wy, c_out).index_add_(0, slot.reshape(-1), taps.reshape(-1, c_out))
