@@ -169,6 +169,7 @@ def main() -> int:
     ap.add_argument("--data", type=Path, default=ROOT / "data" / "real14")
     ap.add_argument("--out", type=Path, default=ROOT / "runs" / "real14")
     ap.add_argument("--reuse", action="store_true")
+    ap.add_argument("--score-only", action="store_true", help="train nothing; score the runs already finished")
     args = ap.parse_args()
     parts = args.parts.split(",")
     seeds = [int(s) for s in args.seeds.split(",")]
@@ -208,6 +209,12 @@ def main() -> int:
             run = args.out / "apollo" / f"traphic-s{seed}"
             jobs.append((run, ["--data", str(paths["apollo"]), "--protocol", "apolloscape", *budget, *s]))
             plan.setdefault("apollo", {}).setdefault("hash split", {}).setdefault("traphic", []).append(run)
+    if args.score_only:  # keep finished runs only (config.json is written last)
+        for folds in plan.values():
+            for methods in folds.values():
+                for m in methods:
+                    methods[m] = [r for r in methods[m] if (r / "config.json").is_file()]
+        jobs = []
     train_all(jobs, args.reuse, args.parallel)
     train_s = time.perf_counter() - t0
     from predictor.split import split_scenes
