@@ -113,13 +113,13 @@ def table(title: str, units: str, folds: dict[str, dict[str, list[dict]]], ref: 
             avg.setdefault(m, []).append((ade, fde))
             n = sum(s["samples"] for s in runs[0].values())
             rel = "-"
-            if m != ref:
+            if m != ref and ref in methods:
                 d, lo, hi = paired_ci(runs, methods[ref], "ade")
                 e, elo, ehi = paired_ci(runs, methods[ref], "fde")
                 rel = (f"{d:+.0%} [{lo:+.0%}, {hi:+.0%}] | {e:+.0%} [{elo:+.0%}, {ehi:+.0%}]" if len(runs[0]) > 1
                        else f"{d:+.0%} | {e:+.0%}")
             else:
-                rel = "- | -"
+                rel = "- | -" if m == ref else "n/a | n/a"
             seeds = f" ({len(runs)} seeds)" if len(runs) > 1 else ""
             out.append(f"| {fold} | {LABEL[m]}{seeds} | {fmt(ade)} / {fmt(fde)} | {fmt(ar)} / {fmt(fr)} | {n} "
                        f"| {rel} |")
@@ -169,6 +169,7 @@ def main() -> int:
     ap.add_argument("--data", type=Path, default=ROOT / "data" / "real14")
     ap.add_argument("--out", type=Path, default=ROOT / "runs" / "real14")
     ap.add_argument("--reuse", action="store_true")
+    ap.add_argument("--score-only", action="store_true", help="train nothing; score the runs already finished")
     args = ap.parse_args()
     parts = args.parts.split(",")
     seeds = [int(s) for s in args.seeds.split(",")]
@@ -208,6 +209,12 @@ def main() -> int:
             run = args.out / "apollo" / f"traphic-s{seed}"
             jobs.append((run, ["--data", str(paths["apollo"]), "--protocol", "apolloscape", *budget, *s]))
             plan.setdefault("apollo", {}).setdefault("hash split", {}).setdefault("traphic", []).append(run)
+    if args.score_only:  # keep finished runs only (config.json is written last)
+        for folds in plan.values():
+            for fold, methods in folds.items():
+                folds[fold] = {m: [r for r in runs if (r / "config.json").is_file()] for m, runs in methods.items()}
+                folds[fold] = {m: runs for m, runs in folds[fold].items() if runs}
+        jobs = []
     train_all(jobs, args.reuse, args.parallel)
     train_s = time.perf_counter() - t0
     from predictor.split import split_scenes
