@@ -68,3 +68,18 @@ def test_sb3_policy_drives_the_closed_loop(tmp_path):
     (tmp_path / "bad.zip").write_bytes(b"not a zip")
     with pytest.raises(UserError, match="not a stable-baselines3 PPO model"):
         load_policy_planner(tmp_path / "bad.zip")
+
+
+def test_the_shipped_policy_loads_with_its_note():
+    import json
+
+    from simharness.policy_planner import SHIPPED
+
+    note = json.loads(SHIPPED.with_suffix(".json").read_text())
+    assert note["trained_steps"] > 0 and "command" in note and SHIPPED.stat().st_size < 5_000_000
+    planner = load_policy_planner()
+    env = gym.make("simharness/HighwayDense-v0", config={"duration": 4.0, "warmup": 8.0}).unwrapped
+    obs, _ = env.reset(seed=0)
+    action, _ = planner.policy.predict(obs, deterministic=True)
+    assert env.action_space.contains(action)
+    env.close()
