@@ -140,3 +140,16 @@ def test_sensitivity_cli_small_run(tmp_path):
     assert all(math.isfinite(a) for a in ade) and ade[1] > ade[0] + 0.5  # the injected error is measured
     assert (out / "sensitivity.md").read_text().count("\n|") >= 3
     assert (out / "sensitivity.png").stat().st_size > 1000
+
+
+@pytest.mark.slow
+def test_perturbed_exact_oracle_serves_degraded_forecasts():
+    """The branch oracle's forecasts are degraded too (what `sensitivity --predictor oracle` measures)."""
+    from simharness.closedloop import EpisodeJob, prepare_spec, run_episode
+    from simharness.scenario import load_scenario
+
+    spec = prepare_spec(load_scenario("stress/step_out").with_overrides({"duration": 4.0, "warmup": 2.0}))
+    clean = run_episode(EpisodeJob(spec, 0, "oracle", keep_scene=False))["scores"]
+    noisy = run_episode(EpisodeJob(spec, 0, "oracle", keep_scene=False, perturbation=Perturbation(noise=4.0)))
+    assert clean["online_ade"] < 0.1
+    assert noisy["scores"]["online_ade"] > clean["online_ade"] + 1.0
