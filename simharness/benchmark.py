@@ -261,7 +261,7 @@ def format_markdown(results: dict[str, Any]) -> str:
              f"{prof['batch_size']}, lr {prof['lr']:g}, at most {prof['max_samples'] or 'all'} training windows "
              f"(stride {prof['stride']} frames; validation on at most {prof.get('max_val_samples') or 'all'}), "
              f"seed {prof['seed']}, {'residual over constant velocity' if prof.get('residual') else 'direct'} "
-             "means. Protocol `{results['protocol']}` (3 s history, "
+             f"means. Protocol `{results['protocol']}` (3 s history, "
              f"5 s future, 5 Hz) on the held-out test scenes. Data hash `{str(results['data_hash'])[:16]}`, config "
              f"hash `{results['config_hash']}`, wall time {results['wall_s']:.0f} s.", "",
              "## Data set (the paper's Table 1)", "", stats_table(results["stats"]), "",

@@ -64,6 +64,7 @@ def test_quick_benchmark_writes_every_table(quick_run: Path, tiny: Path) -> None
     assert res["stats"]["scenes"] == 3 and res["stats"]["distinct_types"] >= 5
     assert set(res["verdict"]) >= {"ade_rmse", "fde_rmse", "beats_every_baseline"}
     md = (quick_run / "results.md").read_text()
+    assert "Protocol `traphic`" in md and "residual over constant velocity" in md
     for heading in ("(the paper's Table 1)", "## Methods", "## Ablation", "## RMSE per horizon second",
                     "Best of 20 samples"):
         assert heading in md
