@@ -36,9 +36,15 @@ def mse(pred: torch.Tensor, fut: torch.Tensor, mask: torch.Tensor) -> torch.Tens
     return (sq * m).sum() / m.sum().clamp_min(1)
 
 
+def nll_mse(pred: torch.Tensor, fut: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """The means fit by MSE alone, sigma and rho by the NLL around the means held fixed: NLL (means detached) +
+    MSE. The joint NLL lets a model widen sigma where its means are poor instead of improving them."""
+    return gaussian_nll(torch.cat([pred[..., :2].detach(), pred[..., 2:]], -1), fut, mask) + mse(pred, fut, mask)
+
+
 def loss_for_epoch(epoch: int, warmup_epochs: int) -> str:
     """"mse" for the first `warmup_epochs` epochs (means first), then "nll"."""
     return "mse" if epoch < warmup_epochs else "nll"
 
 
-LOSSES = {"mse": mse, "nll": gaussian_nll}
+LOSSES = {"mse": mse, "nll": gaussian_nll, "nll+mse": nll_mse}

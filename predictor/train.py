@@ -115,15 +115,18 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
           model_config: dict[str, Any] | None = None, threads: int | None = None,
           progress: bool = True, max_val_samples: int | None = None,
           test_scenes: list[str] | None = None, cache_dir: Path | None = None, lr_schedule: str = "cosine",
-          patience: int | None = None, device: str = "cpu", init: str | Path | None = None) -> dict[str, Any]:
+          patience: int | None = None, device: str = "cpu", mean_loss: str = "nll",
+          init: str | Path | None = None) -> dict[str, Any]:
     """Train `model` on the train split of `data`, keep the best on the val split -> summary dict.
 
     lr_schedule: "cosine" (linear warm-up over LR_WARMUP of the steps, then cosine decay to LR_FLOOR x lr),
     "plateau" (halve when an epoch does not improve validation) or "constant". patience: stop after this many
     epochs of the NLL phase without a better validation criterion (None: run every epoch). device: "cpu",
-    "cuda" or "auto". init: start from these weights instead of random ones (fine-tuning, e.g. sim-to-real): a
-    run folder, or "shipped" for predictor/weights/<model>; its model and model config must be this run's
-    (`init_weights`). Writes out/model.pt (the best epoch's weights), out/config.json, out/log.csv. Returns
+    "cuda" or "auto". mean_loss: after the warm-up, "nll" trains the means by the joint NLL (the paper), "mse" by
+    MSE while sigma and rho follow the NLL around them (losses.nll_mse). init: start from these weights instead
+    of random ones (fine-tuning, e.g. sim-to-real): a run folder, or "shipped" for predictor/weights/<model>; its
+    model and model config must be this run's (`init_weights`). Writes out/model.pt (the best epoch's weights),
+    out/config.json, out/log.csv. Returns
     {"best_epoch", "best_val", "val_history", "epochs_run", "train_samples", "samples_per_s", ...}.
     """
     import torch
@@ -135,6 +138,8 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
     if epochs < 1 or batch_size < 1 or not lr > 0 or warmup_epochs < 0 or (patience is not None and patience < 1):
         raise UserError(f"bad training settings: epochs {epochs}, batch size {batch_size}, lr {lr}, "
                         f"warm-up {warmup_epochs}, patience {patience}; expected positive numbers")
+    if mean_loss not in ("nll", "mse"):
+        raise UserError(f"unknown mean loss {mean_loss!r}; expected nll or mse")
     if lr_schedule not in LR_SCHEDULES:
         raise UserError(f"unknown learning-rate schedule {lr_schedule!r}; expected one of {', '.join(LR_SCHEDULES)}")
     dev = resolve_device(device)
@@ -175,7 +180,8 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
               "seed": seed, "data": str(data), "data_hash": key, "split": split,
               "train": {"epochs": epochs, "warmup_epochs": warmup_epochs, "batch_size": batch_size, "lr": lr,
                         "max_samples": max_samples, "train_samples": int(len(train_idx)),
-                        "val_samples": int(len(val_idx)), "lr_schedule": lr_schedule, "patience": patience},
+                        "val_samples": int(len(val_idx)), "lr_schedule": lr_schedule, "patience": patience,
+                        "mean_loss": mean_loss},
               "device": dev.type, "versions": versions()}
     if init_info is not None:
         config["train"]["init"] = init_info
@@ -207,7 +213,8 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
             if hasattr(net, "training_step"):  # a model with its own update (Social-GAN: discriminator, variety loss)
                 loss = net.training_step(b, kind, opt)
             else:
-                loss = LOSSES[kind](net(b), b["fut"], b["fut_valid"])
+                fn = LOSSES["nll+mse" if kind == "nll" and mean_loss == "mse" else kind]
+                loss = fn(net(b), b["fut"], b["fut_valid"])
                 opt.zero_grad()
                 loss.backward()
                 opt.step()
@@ -290,7 +297,8 @@ def train_command(args: argparse.Namespace) -> int:
                 window=protocol_window(getattr(args, "protocol", None)),
                 model_config={"residual": bool(getattr(args, "residual", True))},
                 lr_schedule=getattr(args, "lr_schedule", "cosine"), patience=getattr(args, "patience", None),
-                device=getattr(args, "device", "auto"), init=getattr(args, "init", None))
+                device=getattr(args, "device", "auto"), mean_loss=getattr(args, "mean_loss", "mse"),
+                init=getattr(args, "init", None))
     if set(res["config"]["split"]["val"]) & set(res["config"]["split"]["train"]):
         print(f"note: one scene left to train on, so validation (checkpoint choice) used the training scene(s) "
               f"{', '.join(res['config']['split']['train'])}")

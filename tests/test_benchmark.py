@@ -54,7 +54,8 @@ def test_quick_benchmark_writes_every_table(quick_run: Path, tiny: Path) -> None
         if name != REFERENCE:
             assert row["train_s"] > 0 and row["params"] > 0 and row["train_samples"] == PROFILES["quick"].max_samples
             assert (quick_run / "runs" / name / "model.pt").is_file()
-            assert json.loads((quick_run / "runs" / name / "config.json").read_text())["model"] == name
+            cfg = json.loads((quick_run / "runs" / name / "config.json").read_text())
+            assert cfg["model"] == name and cfg["model_config"]["residual"] is True  # the default form
     # Every method was scored on the same test windows.
     assert len({r["metrics"]["samples"] for r in res["methods"].values()}) == 1
     gan = res["methods"]["social-gan"]["metrics"]
@@ -63,6 +64,7 @@ def test_quick_benchmark_writes_every_table(quick_run: Path, tiny: Path) -> None
     assert res["stats"]["scenes"] == 3 and res["stats"]["distinct_types"] >= 5
     assert set(res["verdict"]) >= {"ade_rmse", "fde_rmse", "beats_every_baseline"}
     md = (quick_run / "results.md").read_text()
+    assert "Protocol `traphic`" in md and "residual over constant velocity" in md
     for heading in ("(the paper's Table 1)", "## Methods", "## Ablation", "## RMSE per horizon second",
                     "Best of 20 samples"):
         assert heading in md
@@ -71,6 +73,15 @@ def test_quick_benchmark_writes_every_table(quick_run: Path, tiny: Path) -> None
     for fig in ("rmse_curve.png", "methods.png"):
         assert (quick_run / fig).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert not list(quick_run.glob(".*tmp*"))  # nothing half-written left behind
+
+
+def test_no_residual_trains_the_papers_form(tiny: Path, tmp_path: Path) -> None:
+    import dataclasses
+
+    res = benchmark(tiny, dataclasses.replace(PROFILES["quick"], residual=False), tmp_path, workers=1,
+                    methods=("rnn-ed",), progress=False)
+    assert res["profile"]["residual"] is False and "direct means" in (tmp_path / "results.md").read_text()
+    assert json.loads((tmp_path / "runs" / "rnn-ed" / "config.json").read_text())["model_config"]["residual"] is False
 
 
 def test_same_seed_same_scores_in_worker_processes(quick_run: Path, tiny: Path, tmp_path: Path) -> None:

@@ -13,9 +13,9 @@ class ModelConfig:
     history, future: frames; embed, encoder, decoder: layer widths; pos_scale: metres per unit of the
     position inputs; max_neighbours, max_horizon: agents kept in the ellipse and the semi-ellipse;
     neighbour_grid, horizon_grid: (along, lateral) cells of the two maps.
-    residual: the means are constant-velocity extrapolation plus a learned correction (summed per-step
-        displacements, `residual_scale` metres per unit, zero at initialisation), not the paper's direct
-        form; False in configs written before the option existed.
+    residual: the means are constant-velocity extrapolation plus a learned correction (zero at initialisation,
+        `residual_scale` metres per unit at the last step, ramped from zero along the horizon: models.gaussian),
+        not the paper's direct form; False in configs written before the option existed.
     """
 
     history: int = 15
@@ -29,7 +29,7 @@ class ModelConfig:
     neighbour_grid: tuple[int, int] = (13, 5)
     horizon_grid: tuple[int, int] = (7, 5)
     residual: bool = False
-    residual_scale: float = 0.5
+    residual_scale: float = 5.0
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)

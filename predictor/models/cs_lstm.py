@@ -20,7 +20,6 @@ from torch.nn import functional as fn
 
 from predictor.models.config import ModelConfig
 from predictor.models.gaussian import output, zero_means
-from predictor.models.lstm import constant_input_lstm
 from predictor.models.rnn_ed import positions
 
 
@@ -80,5 +79,5 @@ class CSLSTM(nn.Module):
         ego = fn.leaky_relu(self.dyn(self._encode(batch["hist"])), 0.1)
         soc = self.conv(self.social_tensor(batch["nbr"], batch["nbr_cell"]))
         z = torch.cat([soc, ego], -1)
-        y = constant_input_lstm(self.decoder, z, self.cfg.future)  # the same input at every step
+        y, _ = self.decoder(z[:, None].expand(-1, self.cfg.future, -1))
         return output(self.out(y), self.cfg, batch["hist"])

@@ -47,9 +47,13 @@ def cv_extrapolation(hist: torch.Tensor, future: int) -> torch.Tensor:
 
 
 def residual_means(o_mu: torch.Tensor, hist: torch.Tensor, scale: float) -> torch.Tensor:
-    """Constant velocity plus a correction: o_mu (B, F, 2) per-step displacement corrections (summed, so the
-    first steps stay near constant velocity), `scale` metres per unit -> means (B, F, 2) metres."""
-    return cv_extrapolation(hist, o_mu.shape[1]) + torch.cumsum(o_mu, 1) * scale
+    """Constant velocity plus a correction that grows along the horizon: o_mu (B, F, 2) raw corrections, scaled by
+    `scale` metres per unit at the last step and by (k / F)^2 at step k, as a constant acceleration departs from
+    constant velocity (the first steps stay near it; each step's correction is its own output, not a sum over
+    earlier ones) -> means (B, F, 2) metres."""
+    f = o_mu.shape[1]
+    ramp = (torch.arange(1, f + 1, device=o_mu.device, dtype=o_mu.dtype)[:, None] / f) ** 2 * scale
+    return cv_extrapolation(hist, f) + o_mu * ramp
 
 
 def zero_means(layer: nn.Linear, rows: int = 2) -> None:

@@ -18,7 +18,6 @@ from torch.nn import functional as fn
 from predictor.features import FEATURES
 from predictor.models.config import ModelConfig
 from predictor.models.gaussian import output, zero_means
-from predictor.models.lstm import constant_input_lstm
 
 _XY = [FEATURES.index("x"), FEATURES.index("y")]
 _PRESENT = FEATURES.index("present")
@@ -53,5 +52,5 @@ class RNNED(nn.Module):
         xy, present = positions(batch["hist"], self.cfg.pos_scale)
         x = fn.leaky_relu(self.embed(xy), 0.1) * present[..., None]  # missing steps carry no input
         _, (h, _) = self.encoder(x)
-        y = constant_input_lstm(self.decoder, h[0], self.cfg.future)  # the same input at every step
+        y, _ = self.decoder(h[0][:, None].expand(-1, self.cfg.future, -1))
         return output(self.out(y), self.cfg, batch["hist"])

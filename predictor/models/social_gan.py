@@ -146,11 +146,15 @@ class SocialGAN(nn.Module):
         pos = xy[:, -1].repeat_interleave(k, 0)
         step = (xy[:, -1] - xy[:, -2]).repeat_interleave(k, 0)
         cv = cv_step(hist).repeat_interleave(k, 0) if cfg.residual else None
+        pos0 = pos
         out = []
-        for _ in range(cfg.future):  # autoregressive: each step's input is the previous displacement
+        for t in range(cfg.future):  # autoregressive: each step's input is the previous displacement
             h, c = self.cell(fn.relu(self.embed(step / cfg.disp_scale)), (h, c))
-            # Residual: constant velocity's step plus a correction (zero at initialisation).
-            step = self.to_step(h) * cfg.disp_scale if cv is None else cv + self.to_step(h) * cfg.residual_scale
+            if cv is None:
+                step = self.to_step(h) * cfg.disp_scale
+            else:  # residual: constant velocity plus a correction ramped along the horizon (models.gaussian)
+                new = pos0 + (t + 1) * cv + self.to_step(h) * (cfg.residual_scale * ((t + 1) / cfg.future) ** 2)
+                step = new - pos
             pos = pos + step
             out.append(pos)
         return torch.stack(out, 1).view(b, k, cfg.future, 2)

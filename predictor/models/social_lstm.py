@@ -23,7 +23,6 @@ from torch.nn import functional as fn
 
 from predictor.models.config import ModelConfig
 from predictor.models.gaussian import output, zero_means
-from predictor.models.lstm import constant_input_lstm
 from predictor.models.rnn_ed import positions
 
 
@@ -139,5 +138,5 @@ class SocialLSTM(nn.Module):
     def forward(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
         group = torch.cat([batch["hist"][:, None], batch["nbr"]], 1)  # (B, 1 + K, H, D)
         h = self.encode(group)[:, 0]
-        y = constant_input_lstm(self.decoder, h, self.cfg.future)  # the same input at every step
+        y, _ = self.decoder(h[:, None].expand(-1, self.cfg.future, -1))
         return output(self.out(y), self.cfg, batch["hist"])
