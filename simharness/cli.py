@@ -221,6 +221,7 @@ def build_parser() -> argparse.ArgumentParser:
                          "heading (deg), drop (agent type), sigma (x); e.g. noise=0,0.5,1,2,4")
     se.add_argument("--seeds", type=parse_seeds, default=[0], help="e.g. 0-49")
     se.add_argument("--out", type=Path, default=Path("runs/sensitivity"))
+    force(se)
 
     sc = cmd("scenario", "simharness.scenario:scenario_command", "validate a scenario file, or list the keys")
     sc.add_argument("scenario", nargs="?", help="file to check; omit to print every key with its default")

@@ -193,6 +193,7 @@ def sensitivity_command(args: Any) -> int:
     """`simharness sensitivity SCENARIO --predictor oracle --perturb noise=0,1,2 --seeds 0-49 --out DIR`."""
     spec = load_scenario(args.scenario)
     grid = parse_grid(args.perturb or ["noise=0"])
+    prepare_output(Path(args.out), getattr(args, "force", False))
     result = sensitivity(spec, args.predictor, grid, args.seeds, Path(args.out), args.workers, args.executor,
                          args.address)
     print(markdown_table(result))
