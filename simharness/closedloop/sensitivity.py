@@ -26,6 +26,7 @@ from simharness.closedloop.config import EpisodeJob, LoopConfig
 from simharness.closedloop.episode import REFERENCE_EGOS, prepare_spec, run_episode
 from simharness.closedloop.perturbations import Perturbation, parse_grid
 from simharness.errors import SimulatorError, UserError
+from simharness.io.folders import prepare_output
 from simharness.scenario import ScenarioSpec, load_scenario
 
 # (row key, per-episode score it averages, label); keys the loop does not compute are left out
