@@ -34,6 +34,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # the project's `predictor` package, not bench/predictor.py beside this file
 SHARED = ROOT.parent / "shared" / "data"
+
+from simharness.io.folders import is_dataset_folder  # noqa: E402
+
 # Two disjoint groups of TRAF videos; the three TRAF53 parts (one video) stay together.
 TRAF_A = ["TRAF11", "TRAF13", "TRAF15", "TRAF21", "TRAF23", "TRAF26", "TRAF37", "TRAF53_1", "TRAF53_2", "TRAF53_3"]
 TRAF_B = ["TRAF12", "TRAF17", "TRAF18", "TRAF22", "TRAF25", "TRAF27", "TRAF38"]
@@ -134,16 +137,16 @@ def prepare(args: argparse.Namespace) -> dict[str, Path]:
     """Import the real samples (and build the ETH/UCY folds); returns the data set folders."""
     d = args.data
     paths = {"traf": d / "traf", "apollo": d / "apollo"}
-    if not (d / "traf" / "manifest.json").is_file():
+    if not is_dataset_folder(d / "traf"):
         sh("import", "traf", str(SHARED / "traf"), "--out", str(d / "traf"), "--type-default", "car",
            "--pixel-scale", "0.03")
-    if not (d / "apollo" / "manifest.json").is_file():
+    if not is_dataset_folder(d / "apollo"):
         sh("import", "apolloscape", str(SHARED / "apolloscape"), "--out", str(d / "apollo"))
     scenes = sorted(p.stem for p in (SHARED / "eth_ucy").glob("*.txt"))
     for held in scenes:
         src, out = d / "eth-src" / held, d / f"eth-not-{held}"
         paths[f"eth:{held}"] = out
-        if (out / "manifest.json").is_file():
+        if is_dataset_folder(out):
             continue
         for sub in ("train", "val", "test"):
             (src / sub).mkdir(parents=True, exist_ok=True)
