@@ -27,3 +27,17 @@ def flow_scene(seed: int, n: int = 16, t: int = 70, dt: float = 0.2) -> Scene:
 def write_flow_dataset(out: Path, scenes: int = 5) -> Path:
     write_dataset([flow_scene(s) for s in range(scenes)], out, {"source": "tests/_predictor_data.py"})
     return out
+
+
+def fit_steps(net, batch: dict, opt, steps: int) -> None:
+    """`steps` MSE steps of `net` on one batch (a model's own `training_step` when it has one, e.g. Social-GAN)."""
+    from predictor.losses import mse
+
+    for _ in range(steps):
+        if hasattr(net, "training_step"):
+            net.training_step(batch, "mse", opt)
+        else:
+            loss = mse(net(batch), batch["fut"], batch["fut_valid"])
+            opt.zero_grad()
+            loss.backward()
+            opt.step()

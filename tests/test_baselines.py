@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from _predictor_data import fit_steps
 
 from predictor.features import FeatureStore, WindowConfig
 from predictor.losses import mse
@@ -99,14 +100,7 @@ def test_loss_falls_in_a_few_steps(name: str, batch: dict[str, torch.Tensor]) ->
             return float(mse(model(batch), batch["fut"], batch["fut_valid"]))
 
     before = error()
-    for _ in range(15):
-        if hasattr(model, "training_step"):
-            model.training_step(batch, "mse", opt)
-        else:
-            loss = mse(model(batch), batch["fut"], batch["fut_valid"])
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
+    fit_steps(model, batch, opt, 15)
     after = error()
     assert after < 0.5 * before, (before, after)
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-from _predictor_data import flow_scene, write_flow_dataset
+from _predictor_data import fit_steps, flow_scene, write_flow_dataset
 
 from predictor.features import FeatureStore, WindowConfig
 from predictor.losses import mse
@@ -59,14 +59,7 @@ def test_residual_model_learns_beyond_constant_velocity(name: str, batch: dict[s
     opt = torch.optim.Adam(net.parameters(), lr=3e-3)
     cv = float(mse(torch.cat([cv_extrapolation(batch["hist"], 25), torch.ones_like(batch["fut"]),
                               torch.zeros_like(batch["fut"][..., :1])], -1), batch["fut"], batch["fut_valid"]))
-    for _ in range(40):
-        if hasattr(net, "training_step"):
-            net.training_step(batch, "mse", opt)
-        else:
-            loss = mse(net(batch), batch["fut"], batch["fut_valid"])
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
+    fit_steps(net, batch, opt, 40)
     with torch.no_grad():
         if name == "social-gan":  # best of 4 samples, what the generator's variety loss trains
             err = ((net.sample(batch, 4, seed=1) - batch["fut"][:, None]) ** 2).sum(-1).mean(-1).min(1).values.mean()
