@@ -77,9 +77,15 @@ def load_windows(data: Path, window: WindowConfig, progress: bool = True,
                  cache_dir: Path | None = None) -> FeatureStore:
     """The cached FeatureStore of a data set (built on first use; cache in `cache_dir`, by default
     `predictor.windows_cache.default_cache_dir()`, outside the data set folder)."""
+    key, _, scenes_fn = open_data(data)
+    return _cached_windows(key, scenes_fn, window, progress, cache_dir)
+
+
+def _cached_windows(key: str, scenes_fn: Any, window: WindowConfig, progress: bool,
+                    cache_dir: Path | None) -> FeatureStore:
+    """The FeatureStore of an opened data set (`open_data`), from the cache keyed on its content hash."""
     from predictor.windows_cache import default_cache_dir
 
-    key, _, scenes_fn = open_data(data)
     return FeatureStore.cached(Path(cache_dir) if cache_dir else default_cache_dir(), str(key), window, scenes_fn,
                                progress=progress)
 
@@ -149,8 +155,8 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
     window = window or WindowConfig()
-    key, ids, _ = open_data(data)
-    store = load_windows(data, window, progress=progress, cache_dir=cache_dir)
+    key, ids, scenes_fn = open_data(data)  # once: opening checks every shard's sha256
+    store = _cached_windows(key, scenes_fn, window, progress, cache_dir)
     split = split_scenes(ids, test_scenes=test_scenes)  # test_scenes: leave-one-scene-out by name
     train_idx, val_idx = store.samples_of(split["train"]), store.samples_of(split["val"])
     if max_samples is not None and len(train_idx) > max_samples:
