@@ -81,10 +81,29 @@ def _min_ttc(frame: Frame, xy: np.ndarray, heading: np.ndarray, length: np.ndarr
     window = (_TAUS[None] >= lo[rows, None] - 1e-6) & (_TAUS[None] <= hi[rows, None] + 1e-6)  # (P, K)
     p, k = np.nonzero(window)
     r, tau = rows[p], _TAUS[k]
-    hit = boxes_overlap(xy[r] + vel[r] * tau[:, None], heading[r], length[r], width[r],
-                        xy[e] + vel[e] * tau[:, None], np.full(r.size, heading[e]), np.full(r.size, length[e]),
-                        np.full(r.size, width[e]))
+    pa, pe = xy[r] + vel[r] * tau[:, None], xy[e] + vel[e] * tau[:, None]
+    keep = np.flatnonzero(_may_overlap(pa - pe, heading[r], length[r], width[r], heading[e], length[e], width[e]))
+    if keep.size == 0:
+        return TTC_CAP
+    r, tau = r[keep], tau[keep]
+    hit = boxes_overlap(pa[keep], heading[r], length[r], width[r], pe[keep], np.full(r.size, heading[e]),
+                        np.full(r.size, length[e]), np.full(r.size, width[e]))
     return float(tau[hit].min()) if hit.any() else TTC_CAP
+
+
+def _may_overlap(rel: np.ndarray, ha: np.ndarray, la: np.ndarray, wa: np.ndarray, hb: float, lb: float,
+                 wb: float) -> np.ndarray:
+    """(P,) bool, False only where `boxes_overlap` is surely False: the centres (rel (P, 2) m, a minus b)
+    lie more than 1e-6 m beyond the two boxes' projection radii along one of the four box axes."""
+    ca, sa, cb, sb = np.cos(ha), np.sin(ha), np.cos(hb), np.sin(hb)
+    cos_d, sin_d = np.abs(ca * cb + sa * sb), np.abs(sa * cb - ca * sb)  # |cos|, |sin| of the angle between them
+    la, wa, lb, wb = 0.5 * la, 0.5 * wa, 0.5 * lb, 0.5 * wb
+    x, y = rel[:, 0], rel[:, 1]
+    ok = np.abs(x * ca + y * sa) <= la + lb * cos_d + wb * sin_d + 1e-6  # along a's heading
+    ok &= np.abs(y * ca - x * sa) <= wa + lb * sin_d + wb * cos_d + 1e-6  # across a
+    ok &= np.abs(x * cb + y * sb) <= lb + la * cos_d + wa * sin_d + 1e-6  # along b's heading
+    ok &= np.abs(y * cb - x * sb) <= wb + la * sin_d + wa * cos_d + 1e-6  # across b
+    return ok
 
 
 def step_reward(weights: dict[str, float], moved: float, new_contact: bool, accel: float, prev_accel: float,

@@ -126,19 +126,24 @@ def lateral_claims(s: TrafficState, hy: np.ndarray, walking_now: np.ndarray) -> 
 
 
 def find_leaders(
-    pw: Pairwise, y: np.ndarray, hy: np.ndarray, claim_lo: np.ndarray, claim_hi: np.ndarray, sees: np.ndarray,
-    margin: float = 0.0,
+    pw: Pairwise, y: np.ndarray, hy: np.ndarray, claim_lo: np.ndarray, claim_hi: np.ndarray,
+    sees: np.ndarray | None, margin: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Lane-free leader: nearest agent ahead whose box comes within `margin` (m) of one's width band, or
     whose claim does (too narrow a gap to pass beside counts as the same band).
 
-    sees: (n, n) bool, row i takes column j into account. Returns leader (n,) int row and
-    gap (n,) bumper gap in m (inf where there is no leader; >= 0.01 where boxes already overlap).
+    sees: (n, n) bool, row i takes column j into account; None: everyone sees everyone else. Returns
+    leader (n,) int row and gap (n,) bumper gap in m (inf where there is no leader; >= 0.01 where boxes
+    already overlap).
     """
-    band = pw.lat_gap < margin
-    claimed = (claim_lo[None, :] < (y + hy + margin)[:, None]) & (claim_hi[None, :] > (y - hy - margin)[:, None])
-    cand = sees & (pw.dx > 0) & (band | (claimed & (pw.gap > 0)))
-    g = np.where(cand, np.maximum(pw.gap, 0.01), np.inf)
+    cand = (claim_lo[None, :] < (y + hy + margin)[:, None]) & (claim_hi[None, :] > (y - hy - margin)[:, None])
+    cand &= pw.gap > 0
+    cand |= pw.lat_gap < margin  # in the band, or claiming it with room ahead
+    cand &= pw.dx > 0
+    if sees is not None:
+        cand &= sees
+    g = np.maximum(pw.gap, 0.01)
+    g[~cand] = np.inf
     lead = np.argmin(g, axis=1) if g.size else np.zeros(0, int)
     return lead, g[np.arange(len(lead)), lead]
 
@@ -181,18 +186,22 @@ def clamp_to_leaders(v_new: np.ndarray, leader: np.ndarray, gap: np.ndarray, dt:
     return v
 
 
-def side_windows(pw: Pairwise, vx: np.ndarray, s0: np.ndarray, sees: np.ndarray) -> np.ndarray:
+def side_windows(pw: Pairwise, vx: np.ndarray, s0: np.ndarray, sees: np.ndarray | None) -> np.ndarray:
     """(n, n) bool: j is beside i, or close enough ahead/behind that i must not move into its band.
 
     The margin is the follower's safe gap: half its standstill gap, half a second of its
-    speed, plus one second of closing speed.
+    speed, plus one second of closing speed. sees: (n, n) bool or None (everyone else).
     """
     behind = pw.dx < 0
-    fs0 = np.where(behind, s0[None, :], s0[:, None])
-    fv = np.where(behind, vx[None, :], vx[:, None])
-    closing = np.where(behind, vx[None, :] - vx[:, None], vx[:, None] - vx[None, :])
-    margin = 0.5 * fs0 + 0.5 * fv + np.maximum(closing, 0.0)
-    window = sees & (pw.gap < margin)
+    follower = 0.5 * s0 + 0.5 * vx  # (n,) the follower's own part of the margin
+    closing = vx[:, None] - vx[None, :]  # i closing on j; j behind: the negation, exactly
+    np.negative(closing, out=closing, where=behind)
+    np.maximum(closing, 0.0, out=closing)
+    margin = np.where(behind, follower[None, :], follower[:, None])
+    margin += closing
+    window = pw.gap < margin
+    if sees is not None:
+        window &= sees
     np.fill_diagonal(window, False)
     return window
 
@@ -205,22 +214,41 @@ def lateral_room(pw: Pairwise, window: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return left, right
 
 
-def band_gaps(pw_rows: Pairwise, cand_y: np.ndarray, hy_rows: np.ndarray, claim_lo: np.ndarray,
+def band_gaps(gap_rows: np.ndarray, cand_y: np.ndarray, hy_rows: np.ndarray, claim_lo: np.ndarray,
               claim_hi: np.ndarray, ahead: np.ndarray, vx: np.ndarray, margin: float = 0.0,
-              ) -> tuple[np.ndarray, np.ndarray]:
+              horizon: float = np.inf, want: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Gap ahead and leader speed for each row at each candidate lateral offset.
 
-    pw_rows: Pairwise restricted to R deciding rows (R, n); cand_y (R, C) m; hy_rows (R,);
-    claims (n,); ahead (R, n) bool; margin (m) as in `find_leaders`.
+    gap_rows (R, n) m: bumper gaps of R deciding rows to everyone (`Pairwise.gap` rows); cand_y (R, C) m;
+    hy_rows (R,); claims (n,); ahead (R, n) bool: who may lead; margin (m) as in `find_leaders`;
+    horizon (m): leaders farther than this are not looked for (their offsets count as free road);
+    want (R, C) bool: the offsets to look at (None: all; the others come back as free road).
     Returns gap (R, C) m (inf: free) and lead speed (R, C) m/s.
     """
-    lo = (cand_y - hy_rows[:, None] - margin)[:, :, None]  # (R, C, 1)
-    hi = (cand_y + hy_rows[:, None] + margin)[:, :, None]
-    overlap = (claim_lo[None, None, :] < hi) & (claim_hi[None, None, :] > lo) & ahead[:, None, :]
-    g = np.where(overlap, np.maximum(pw_rows.gap, 0.0)[:, None, :], np.inf)  # (R, C, n)
-    j = np.argmin(g, axis=2) if g.shape[2] else np.zeros(g.shape[:2], int)
-    gap = np.take_along_axis(g, j[..., None], axis=2)[..., 0] if g.shape[2] else np.full(g.shape[:2], np.inf)
-    return gap, np.where(np.isfinite(gap), vx[j] if g.shape[2] else 0.0, np.inf)
+    gap, v_lead = np.full(cand_y.shape, np.inf), np.full(cand_y.shape, np.inf)
+    g_all = np.maximum(gap_rows, 0.0)
+    rows, cols = np.nonzero(ahead & (g_all <= horizon))  # row-major: columns ascend within a row
+    counts = np.bincount(rows, minlength=cand_y.shape[0])
+    k = int(counts.max()) if rows.size else 0
+    if k == 0:
+        return gap, v_lead
+    # Each row's leader candidates packed left in column order, so argmin breaks ties as over all n columns.
+    pos = np.arange(rows.size) - (np.cumsum(counts) - counts)[rows]
+    idx = np.zeros((cand_y.shape[0], k), np.intp)
+    idx[rows, pos] = cols
+    g = np.full((cand_y.shape[0], k), np.inf)
+    g[rows, pos] = g_all[rows, cols]
+    pr, pc = np.nonzero(np.ones(cand_y.shape, bool) if want is None else want)  # (P,) offsets looked at
+    y, h = cand_y[pr, pc], hy_rows[pr]
+    cand_idx = idx[pr]  # (P, k)
+    overlap = claim_lo[cand_idx] < (y + h + margin)[:, None]
+    overlap &= claim_hi[cand_idx] > (y - h - margin)[:, None]
+    gg = np.where(overlap, g[pr], np.inf)
+    j = np.argmin(gg, axis=1)
+    best = gg[np.arange(pr.size), j]
+    gap[pr, pc] = best
+    v_lead[pr, pc] = np.where(np.isfinite(best), vx[cand_idx[np.arange(pr.size), j]], np.inf)
+    return gap, v_lead
 
 
 def offset_scores(gap: np.ndarray, v_lead: np.ndarray, v: np.ndarray, v0: np.ndarray, s0: np.ndarray,
@@ -257,11 +285,11 @@ def safe_lateral_moves(move: np.ndarray, vx: np.ndarray, length: np.ndarray, wid
     return opts[np.argmax(ok, axis=0), np.arange(move.size)]
 
 
-def crossing_clear(ped: np.ndarray, s: TrafficState, hx: np.ndarray, hy: np.ndarray, sees: np.ndarray,
+def crossing_clear(ped: np.ndarray, s: TrafficState, hx: np.ndarray, hy: np.ndarray, sees: np.ndarray | None,
                    half_width: float) -> np.ndarray:
     """Gap acceptance of crossing pedestrians: (P,) bool, the strip ahead is safe to walk into now.
 
-    ped: (P,) rows of crossing pedestrians; sees (P, n). A vehicle blocks the strip the pedestrian
+    ped: (P,) rows of crossing pedestrians; sees (P, n) or None (everyone). A vehicle blocks the strip the pedestrian
     claims (PED_CLAIM_S of walking) when it is level with the pedestrian, or approaching and
     unable to stop comfortably short of it. Off the carriageway the strip is always clear.
     """
@@ -269,7 +297,7 @@ def crossing_clear(ped: np.ndarray, s: TrafficState, hx: np.ndarray, hy: np.ndar
     reach = d * (s.v0[ped] * PED_CLAIM_S + 0.3)
     lo = np.minimum(s.y[ped], s.y[ped] + reach) - hy[ped]
     hi = np.maximum(s.y[ped], s.y[ped] + reach) + hy[ped]
-    veh = (s.kind != CROSSING)[None, :] & sees
+    veh = (s.kind != CROSSING)[None, :] if sees is None else (s.kind != CROSSING)[None, :] & sees
     lat = (s.y - hy)[None, :] < hi[:, None]
     lat &= (s.y + hy)[None, :] > lo[:, None]
     front_j = (s.x + hx)[None, :]

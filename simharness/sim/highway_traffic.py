@@ -247,20 +247,18 @@ class Traffic:
         self.steps += 1
         return events
 
-    def _sees(self, s: TrafficState) -> tuple[np.ndarray, np.ndarray]:
-        """(n, n) whom each agent takes into account, longitudinally and laterally (ego reaction applied)."""
-        n = s.n
-        sees = ~np.eye(n, dtype=bool)
-        lat = sees.copy()
+    def _sees(self, s: TrafficState) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """(n, n) whom each agent takes into account, longitudinally and laterally (ego reaction applied);
+        None where everyone sees everyone else (no (n, n) mask to build or apply)."""
         ego = np.flatnonzero(s.is_ego)
-        if ego.size:
-            bg = ~s.is_ego
-            if self.ego_reaction == "ignore":
-                sees[np.ix_(bg, ego)] = False
-                lat[np.ix_(bg, ego)] = False
-            elif self.ego_reaction == "cut_in":
-                lat[np.ix_(bg, ego)] = False  # re-added below for side-by-side only
-        return sees, lat
+        if not ego.size or self.ego_reaction not in ("ignore", "cut_in"):
+            return None, None
+        bg = ~s.is_ego
+        lat = ~np.eye(s.n, dtype=bool)
+        lat[np.ix_(bg, ego)] = False  # cut_in: re-added in _move for side-by-side only
+        if self.ego_reaction == "cut_in":
+            return None, lat
+        return lat, lat
 
     def _move(self, s: TrafficState, dt: float, ego_command: tuple[float, float] | None,
               script: tuple[np.ndarray, np.ndarray] | None = None) -> list[tuple[str, str]]:
@@ -277,7 +275,8 @@ class Traffic:
         ped = np.flatnonzero(s.kind == CROSSING)
         walking_now = np.zeros(n, bool)
         if ped.size:
-            walking_now[ped] = dyn.crossing_clear(ped, s, hx, hy, sees[ped], self.half_width)
+            walking_now[ped] = dyn.crossing_clear(ped, s, hx, hy, None if sees is None else sees[ped],
+                                                    self.half_width)
         lo, hi = dyn.lateral_claims(s, hy, walking_now)
 
         # Longitudinal: IDM on the lane-free leader, then a hard clamp that keeps every gap open.
@@ -330,7 +329,7 @@ class Traffic:
         return events
 
     def _decide_targets(self, s: TrafficState, pw: dyn.Pairwise, hy: np.ndarray, lo: np.ndarray, hi: np.ndarray,
-                        sees: np.ndarray, room_l: np.ndarray, room_r: np.ndarray, commanded: np.ndarray,
+                        sees: np.ndarray | None, room_l: np.ndarray, room_r: np.ndarray, commanded: np.ndarray,
                         dt: float) -> None:
         """Re-choose the lateral target of a rotating share of the vehicles (each every decision_period)."""
         every = max(1, int(round(float(self.config["decision_period"]) / dt)))
@@ -340,19 +339,23 @@ class Traffic:
         grid = self._grid()
         cand = np.concatenate([np.broadcast_to(grid, (rows.size, grid.size)),
                                s.y[rows, None], s.y_target[rows, None]], axis=1)  # (R, C + 2)
-        sub = dyn.Pairwise(pw.dx[rows], pw.dy[rows], pw.gap[rows], pw.lat_gap[rows])
-        ahead = sees[rows] & (pw.dx[rows] > 0)
-        gap, v_lead = dyn.band_gaps(sub, cand, hy[rows], lo, hi, ahead, s.vx, 0.5 * self.min_gap_lat)
-        slow = s.v0[rows] < 0.6 * self.speed_limit
-        scores = dyn.offset_scores(gap, v_lead, s.vx[rows], s.v0[rows], s.s0[rows], s.headway[rows], s.b_comf[rows],
-                                   cand, s.y[rows], np.where(slow, 1.5, 0.0), self.half_width)
-        scores += self._cut_in_bonus(s, rows, cand, hy)
         inside = np.abs(cand) + hy[rows, None] <= self.half_width - EDGE_GAP
         shift = cand - s.y[rows, None]
         reach = (shift <= room_l[rows, None] - self.min_gap_lat) & (shift >= -(room_r[rows, None] - self.min_gap_lat))
         ok = inside & reach
         ok[:, -2] = self.lane_centres is None  # staying put is always allowed without lane discipline
         ok[:, -1] = inside[:, -1]  # the current plan stays valid while blocked
+        ahead = pw.dx[rows] > 0
+        if sees is not None:
+            ahead &= sees[rows]
+        # Only offsets it may take are scored (the rest score -inf whatever their gap), and leaders beyond
+        # LOOKAHEAD do not change a score (free road either way): neither is looked for.
+        gap, v_lead = dyn.band_gaps(pw.gap[rows], cand, hy[rows], lo, hi, ahead, s.vx, 0.5 * self.min_gap_lat,
+                                    horizon=dyn.LOOKAHEAD, want=ok)
+        slow = s.v0[rows] < 0.6 * self.speed_limit
+        scores = dyn.offset_scores(gap, v_lead, s.vx[rows], s.v0[rows], s.s0[rows], s.headway[rows], s.b_comf[rows],
+                                   cand, s.y[rows], np.where(slow, 1.5, 0.0), self.half_width)
+        scores += self._cut_in_bonus(s, rows, cand, hy)
         scores = np.where(ok, scores, -np.inf)
         best = np.argmax(scores, axis=1)
         top, plan = scores[np.arange(rows.size), best], scores[:, -1]

@@ -255,8 +255,13 @@ class HeteroHighwayEnv(AbstractEnv):
         s, e = self.traffic.state, self.traffic.ego_row
         if e < 0 or s.n < 2:
             return []
+        dx, dy = s.x - s.x[e], s.y - s.y[e]
+        # Boxes overlap only when their centres are within the sum of their half-diagonals: test only those.
+        reach = 0.5 * np.hypot(s.length, s.width) + 0.5 * np.hypot(s.length[e], s.width[e]) + 1e-6
+        near = np.flatnonzero((np.abs(dx) < 15.0) & (dx * dx + dy * dy <= reach * reach) & ~s.is_ego)
+        if near.size == 0:
+            return []
         h = s.headings()
-        near = np.flatnonzero((np.abs(s.x - s.x[e]) < 15.0) & ~s.is_ego)
         m = near.size
         hit = boxes_overlap(np.stack([s.x[near], s.y[near]], -1), h[near], s.length[near], s.width[near],
                             np.tile([s.x[e], s.y[e]], (m, 1)), np.full(m, h[e]), np.full(m, s.length[e]),
