@@ -16,6 +16,11 @@ import dataclasses
 
 import numpy as np
 
+try:  # np.clip's own ufunc, without its Python-level wrapper (same results, signed zeros included)
+    from numpy._core.umath import clip
+except ImportError:  # numpy < 2
+    from numpy.core.umath import clip
+
 VEHICLE, CROSSING, WALKING = 0, 1, 2  # kinds: drives; crosses the road; walks along its edge
 
 B_EMERGENCY = 8.0  # m/s^2: decelerations beyond this are reported as emergency stops
@@ -26,6 +31,7 @@ LAT_GAIN = 0.8  # 1/s: lateral speed per metre of offset from the target
 LAT_ACC = 1.5  # m/s^2: how fast the lateral speed may change
 LAT_COST = 0.35  # (m/s)/m: score lost per metre of lateral move
 LOOKAHEAD = 80.0  # m: gaps beyond this count as free road when choosing a lateral offset
+_BIG = 1e12  # m: added to masked-out entries so that an argmin passes them over (every real gap is far smaller)
 
 
 @dataclasses.dataclass
@@ -142,10 +148,19 @@ def find_leaders(
     cand &= pw.dx > 0
     if sees is not None:
         cand &= sees
-    g = np.maximum(pw.gap, 0.01)
-    g[~cand] = np.inf
-    lead = np.argmin(g, axis=1) if g.size else np.zeros(0, int)
-    return lead, g[np.arange(len(lead)), lead]
+    return masked_argmin(np.maximum(pw.gap, 0.01), cand)
+
+
+def masked_argmin(values: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Row-wise argmin of values (R, m) m among the True entries of mask (R, m), ties to the first, and its
+    value: (R,) int (0 where a row has none) and (R,) m (inf where it has none). values must be < _BIG / 2."""
+    if values.shape[1] == 0:
+        return np.zeros(values.shape[0], np.intp), np.full(values.shape[0], np.inf)
+    v = values + ~mask * _BIG  # adding 0.0 keeps the entries that count exact; cheaper than np.where
+    j = np.argmin(v, axis=1)
+    best = v[np.arange(v.shape[0]), j]
+    none = best >= 0.5 * _BIG
+    return np.where(none, 0, j), np.where(none, np.inf, best)
 
 
 def idm_acceleration(v: np.ndarray, v0: np.ndarray, a: np.ndarray, b: np.ndarray, headway: np.ndarray,
@@ -208,9 +223,9 @@ def side_windows(pw: Pairwise, vx: np.ndarray, s0: np.ndarray, sees: np.ndarray 
 
 def lateral_room(pw: Pairwise, window: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Free lateral distance (n,) to the nearest box in the side window on the left (+y) and right (m)."""
-    clear = pw.lat_gap >= -1e-9  # boxes in one's own band are ahead or behind, not beside
-    left = np.where(window & clear & (pw.dy > 0), pw.lat_gap, np.inf).min(axis=1, initial=np.inf)
-    right = np.where(window & clear & (pw.dy < 0), pw.lat_gap, np.inf).min(axis=1, initial=np.inf)
+    beside = window & (pw.lat_gap >= -1e-9)  # boxes in one's own band are ahead or behind, not beside
+    _, left = masked_argmin(pw.lat_gap, beside & (pw.dy > 0))
+    _, right = masked_argmin(pw.lat_gap, beside & (pw.dy < 0))
     return left, right
 
 
@@ -243,9 +258,7 @@ def band_gaps(gap_rows: np.ndarray, cand_y: np.ndarray, hy_rows: np.ndarray, cla
     cand_idx = idx[pr]  # (P, k)
     overlap = claim_lo[cand_idx] < (y + h + margin)[:, None]
     overlap &= claim_hi[cand_idx] > (y - h - margin)[:, None]
-    gg = np.where(overlap, g[pr], np.inf)
-    j = np.argmin(gg, axis=1)
-    best = gg[np.arange(pr.size), j]
+    j, best = masked_argmin(g[pr], overlap)
     gap[pr, pc] = best
     v_lead[pr, pc] = np.where(np.isfinite(best), vx[cand_idx[np.arange(pr.size), j]], np.inf)
     return gap, v_lead

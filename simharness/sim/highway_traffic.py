@@ -267,6 +267,7 @@ class Traffic:
         commanded = s.is_ego & (ego_command is not None)
         scripted = np.zeros(n, bool) if script is None else np.isfinite(script[0])
         fixed = commanded | scripted  # driven from outside the traffic model: no clamps, no own decisions
+        any_commanded, any_scripted = bool(commanded.any()), bool(scripted.any())
         heading = s.headings()
         hx, hy = dyn.half_extents(s.length, s.width, heading)
         pw = dyn.pairwise(s.x, s.y, hx, hy)
@@ -282,13 +283,13 @@ class Traffic:
         # Longitudinal: IDM on the lane-free leader, then a hard clamp that keeps every gap open.
         leader, gap = dyn.find_leaders(pw, s.y, hy, lo, hi, sees, 0.5 * self.min_gap_lat)
         acc = dyn.idm_acceleration(s.vx, s.v0, s.a_max, s.b_comf, s.headway, s.s0, gap, s.vx[leader])
-        if commanded.any():
+        if any_commanded:
             a_ego = float(np.clip(ego_command[0], -B_EGO, PARAMS["a_max"][s.agent_type[commanded][0]]))
             acc = np.where(commanded, a_ego, acc)
-        if scripted.any():
+        if any_scripted:
             acc = np.where(scripted, script[0], acc)
         v_max = PARAMS["v_max"][s.agent_type]
-        v_new = np.clip(s.vx + acc * dt, 0.0, v_max)
+        v_new = dyn.clip(s.vx + acc * dt, 0.0, v_max)
         v_new = dyn.clamp_to_leaders(v_new, leader, gap, dt, fixed, s.kind == CROSSING)
         hard = (s.vx - v_new > dyn.B_EMERGENCY * dt + 1e-9) & ~fixed
         events = [("emergency_stop", str(a)) for a in s.agent_id[hard]]
@@ -300,25 +301,31 @@ class Traffic:
             window |= (~s.is_ego)[:, None] & s.is_ego[None, :] & (pw.gap < self.min_gap_lat)
         room_l, room_r = dyn.lateral_room(pw, window)
         self._decide_targets(s, pw, hy, lo, hi, sees, room_l, room_r, fixed, dt)
-        speed_share = np.clip(s.vx / 4.0, 0.0, 1.0)  # no sideways motion without forward speed
+        speed_share = dyn.clip(s.vx / 4.0, 0.0, 1.0)  # no sideways motion without forward speed
         vy_lim = s.vy_max * speed_share
-        vy_des = np.clip(dyn.LAT_GAIN * (s.y_target - s.y), -vy_lim, vy_lim)
-        vy = s.vy + np.clip(vy_des - s.vy, -dyn.LAT_ACC * dt, dyn.LAT_ACC * dt)
+        vy_des = dyn.clip(dyn.LAT_GAIN * (s.y_target - s.y), -vy_lim, vy_lim)
+        vy = s.vy + dyn.clip(vy_des - s.vy, -dyn.LAT_ACC * dt, dyn.LAT_ACC * dt)
         vy = np.where(s.kind == CROSSING, walking_now * s.cross_dir * s.v0, np.where(s.kind == WALKING, 0.0, vy))
-        if commanded.any():
+        if any_commanded:
             vy = np.where(commanded, np.clip(ego_command[1], -vy_lim, vy_lim), vy)
-        if scripted.any():
+        if any_scripted:
             vy = np.where(scripted, script[1], vy)
         move = vy * dt
         up = np.maximum(0.0, 0.5 * (room_l - self.min_gap_lat))
         down = np.maximum(0.0, 0.5 * (room_r - self.min_gap_lat))
         is_veh = s.kind == VEHICLE
-        edge_up = np.maximum(0.0, self.half_width - EDGE_GAP * ~commanded - (s.y + hy))
-        edge_down = np.maximum(0.0, self.half_width - EDGE_GAP * ~commanded + (s.y - hy))
-        up = np.where(commanded, edge_up, np.where(is_veh, np.minimum(up, edge_up), up))
-        down = np.where(commanded, edge_down, np.where(is_veh, np.minimum(down, edge_down), down))
-        up, down = np.where(scripted, np.inf, up), np.where(scripted, np.inf, down)  # the script keeps them on
-        move = np.clip(move, -down, up)
+        if any_commanded:
+            edge_up = np.maximum(0.0, self.half_width - EDGE_GAP * ~commanded - (s.y + hy))
+            edge_down = np.maximum(0.0, self.half_width - EDGE_GAP * ~commanded + (s.y - hy))
+            up = np.where(commanded, edge_up, np.where(is_veh, np.minimum(up, edge_up), up))
+            down = np.where(commanded, edge_down, np.where(is_veh, np.minimum(down, edge_down), down))
+        else:  # the same values: nobody has the ego's edge allowance
+            edge = self.half_width - EDGE_GAP
+            up = np.where(is_veh, np.minimum(up, np.maximum(0.0, edge - (s.y + hy))), up)
+            down = np.where(is_veh, np.minimum(down, np.maximum(0.0, edge + (s.y - hy))), down)
+        if any_scripted:
+            up, down = np.where(scripted, np.inf, up), np.where(scripted, np.inf, down)  # the script keeps them on
+        move = dyn.clip(move, -down, up)
         turning = (s.kind != CROSSING) & ~fixed
         move = np.where(turning, dyn.safe_lateral_moves(move, v_new, s.length, s.width, hy, up, down, dt), move)
 
