@@ -16,10 +16,8 @@ import dataclasses
 
 import numpy as np
 
-try:  # np.clip's own ufunc, without its Python-level wrapper (same results, signed zeros included)
-    from numpy._core.umath import clip
-except ImportError:  # numpy < 2
-    from numpy.core.umath import clip
+# np.clip's own ufunc, without its Python-level wrapper (same results, signed zeros included); numpy < 2: np.core
+clip = (np._core if hasattr(np, "_core") else np.core).umath.clip
 
 VEHICLE, CROSSING, WALKING = 0, 1, 2  # kinds: drives; crosses the road; walks along its edge
 
