@@ -7,7 +7,8 @@ directly (`Simulator.step` with a constant ego command: no observation, reward o
 the share `raw time / env time` says what the env layer costs. Rates are per CPU-second (this process
 plus the env's SUMO worker: a shared machine's load does not count; wall-clock rates are in the JSON),
 and the loops run interleaved in chunks so the rest of a busy machine affects them alike. Also the env
-with ``episodes_per_warmup = 1`` (every reset warms the traffic up from empty, as before warm resets).
+with ``episodes_per_warmup = 1`` (every reset warms the traffic up from empty, as before warm resets), and
+the env loop's share of CPU spent in reset() with the step-only rate and share (resets left out).
 
 Usage: python bench/envs.py [--steps 1000] [--rounds 5] [--env ID] [--old REV]
   --old REV  also measure the env of git revision REV (checked out into a temporary worktree, run in a
@@ -43,13 +44,16 @@ class EnvLoop:
         self.env.action_space.seed(seed)
         self.env.reset(seed=seed)
         self.resets = 0
+        self.reset_cpu = 0.0  # CPU seconds spent in reset() (warm-ups, the ego's history), within run()
 
     def run(self, n: int) -> tuple[float, float]:
         w0, c0 = time.perf_counter(), cpu_seconds(self.env)
         for _ in range(n):
             _, _, term, trunc, _ = self.env.step(self.env.action_space.sample())
             if term or trunc:
+                r0 = cpu_seconds(self.env)
                 self.env.reset()
+                self.reset_cpu += cpu_seconds(self.env) - r0
                 self.resets += 1
         return time.perf_counter() - w0, cpu_seconds(self.env) - c0
 
@@ -111,6 +115,10 @@ def measure(steps: int, rounds: int, env_ids: tuple[str, ...] = ENVS, variants: 
             rec[f"{k}_steps_per_wall_s"] = n / wall[k]
             rec[f"{k}_share_of_raw"] = cpu["raw"] / cpu[k]
             rec[f"{k}_resets"] = loops[k].resets
+            rec[f"{k}_reset_cpu_share"] = loops[k].reset_cpu / cpu[k]
+            # step() alone (resets left out): what the env layer costs on top of the simulator per step
+            rec[f"{k}_step_only_per_s"] = n / (cpu[k] - loops[k].reset_cpu)
+            rec[f"{k}_step_only_share_of_raw"] = cpu["raw"] / (cpu[k] - loops[k].reset_cpu)
         out[env_id] = rec
         raw.sim.close()
         for loop in loops.values():
@@ -147,10 +155,12 @@ def main() -> None:
     ids = (a.env,) if a.env else ENVS
     res = measure(a.steps, a.rounds, ids)
     old = measure_old(a.old, a.steps) if a.old else {}
-    print(f"{'env':16s} {'raw fr/s':>9s} {'env st/s':>9s} {'share':>6s} {'cold-reset st/s':>16s} {'share':>6s}"
-          + (f" {'old st/s':>9s}" if old else ""))
+    print(f"{'env':16s} {'raw fr/s':>9s} {'env st/s':>9s} {'share':>6s} {'in reset':>8s} {'step-only st/s':>15s} "
+          f"{'share':>6s} {'cold-reset st/s':>16s} {'share':>6s}" + (f" {'old st/s':>9s}" if old else ""))
     for k, r in res.items():
         line = (f"{k:16s} {r['raw_frames_per_s']:9.0f} {r['env_steps_per_s']:9.0f} {r['env_share_of_raw']:6.0%} "
+                f"{r['env_reset_cpu_share']:8.0%} {r['env_step_only_per_s']:15.0f} "
+                f"{r['env_step_only_share_of_raw']:6.0%} "
                 f"{r['env_cold_resets_steps_per_s']:16.0f} {r['env_cold_resets_share_of_raw']:6.0%}")
         if old:
             line += f" {old.get(k, float('nan')):9.0f}"
