@@ -8,7 +8,13 @@
 3. On paper: one million scenes, from the figures measured here (core-seconds per scene, bytes per
    scene from the shards written, cores needed to generate them in a day).
 
+With --episodes N, only this instead: N short closed-loop episodes (what sensitivity, sweep, benchmark
+and closedloop run) on the local pool with a fresh process per job (`jobs_per_worker=1`, the former
+executor) and with reused workers, alternately, `--rounds` times each in one run: wall time per
+episode, the ratio, and whether both gave the same scores.
+
     python bench/executors.py [--seeds 8] [--workers 2] [--duration 60]
+    python bench/executors.py --episodes 20 [--workers 2] [--rounds 2]
 """
 
 from __future__ import annotations
@@ -21,6 +27,8 @@ import tempfile
 import time
 from pathlib import Path
 
+# bench/predictor.py is named like the `predictor` package: drop bench/ from the path (workers inherit it).
+sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 from simharness.executors import LocalExecutor, RayExecutor, import_ray, start_local_ray  # noqa: E402
@@ -45,6 +53,41 @@ def job_overhead(pool, n: int) -> float:  # noqa: ANN001 - any Executor
     return (time.perf_counter() - t0) / n
 
 
+def episode_scores(job):  # noqa: ANN001, ANN201 - an EpisodeJob -> its scores without timings
+    from simharness.closedloop import run_episode
+
+    s = run_episode(job)["scores"]
+    return {k: v for k, v in s.items() if k not in ("wall_s", "realtime_factor", "realtime_factor_with_warmup")
+            and not k.startswith("time_")}
+
+
+def episodes(n: int, workers: int, rounds: int) -> None:
+    """Fresh process per episode vs reused workers on the same short highway episodes, alternately."""
+    from simharness.closedloop import EpisodeJob, prepare_spec
+
+    spec = prepare_spec(load_scenario("highway_mixed_dense"), "cut_in").with_overrides(
+        {"duration": 6.0, "warmup": 5.0, "ego.insert_at": 2.0})
+    jobs = [EpisodeJob(spec, s, "const-vel", keep_scene=False) for s in range(n)]
+    print(f"{n} closed-loop episodes of highway_mixed_dense (cut_in, {spec.warmup:g} s warm-up + {spec.duration:g} s,"
+          f" const-vel), {workers} workers, {rounds} round(s) each, alternating; {os.cpu_count()} cores, load average "
+          f"{os.getloadavg()[0]:.1f} at the start")
+    times: dict[str, list[float]] = {"fresh": [], "reused": []}
+    scores = {}
+    for _ in range(rounds):
+        for name, per in (("fresh", 1), ("reused", None)):
+            t0 = time.perf_counter()
+            res = list(LocalExecutor(workers, jobs_per_worker=per).map_unordered(episode_scores, jobs))
+            times[name].append(time.perf_counter() - t0)
+            if not all(r.ok for r in res):
+                sys.exit(f"{name}: {[r.error for r in res if not r.ok][:3]}")
+            scores[name] = {r.job.seed: r.value for r in res}
+    for name, ts in times.items():
+        print(f"  {name:6s} workers: {min(ts):7.2f} s best of {rounds} ({min(ts) / n:.2f} s per episode; all: "
+              + ", ".join(f"{x:.2f}" for x in ts) + ")")
+    print(f"  fresh / reused: {min(times['fresh']) / min(times['reused']):.2f}x; same scores: "
+          f"{scores['fresh'] == scores['reused']}; load average {os.getloadavg()[0]:.1f} at the end")
+
+
 def same_bytes(a: Path, b: Path) -> bool:
     names = sorted(p.name for p in a.iterdir() if p.name != "runs.jsonl")
     return names == sorted(p.name for p in b.iterdir() if p.name != "runs.jsonl") and all(
@@ -56,7 +99,12 @@ def main() -> None:
     p.add_argument("--seeds", type=int, default=8, help="scenes per executor")
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--duration", type=float, default=None, help="recorded seconds per scene (default: scenario's)")
+    p.add_argument("--episodes", type=int, default=None, help="only: fresh vs reused workers on N short episodes")
+    p.add_argument("--rounds", type=int, default=2, help="with --episodes: runs of each, alternating")
     args = p.parse_args()
+    if args.episodes:
+        episodes(args.episodes, args.workers, args.rounds)
+        return
     ray = import_ray()
     spec = load_scenario(SCENARIO)
     if args.duration is not None:

@@ -7,9 +7,13 @@ fresh process, at most `max_retries` more times; then, like a job that raises an
 bad input), it comes back as a failed result while the others go on. Both executors share this
 policy, so a run behaves alike on either.
 
-`LocalExecutor` runs every job in a fresh spawned process (libsumo allows one simulation per
-process, and a fresh process leaves nothing behind from the previous job), at most `workers` at a
-time. `RayExecutor` runs every job as a Ray task in a worker process used once (`max_calls=1`), on a
+`LocalExecutor` keeps up to `workers` spawned worker processes for the whole run and sends each
+one job after another (at most `jobs_per_worker` each, then a fresh one takes its place), so that
+many short jobs pay Python, torch and scenario imports once per worker, not once per job. A worker
+is never reused after its job failed (the retry, or the next job, gets a fresh process) nor when
+its job left a SUMO simulation open (libsumo allows one per process: such a job's simulation is
+closed and its worker retired). `jobs_per_worker=1` is a fresh process per job.
+`RayExecutor` runs every job as a Ray task in a worker process used once (`max_calls=1`), on a
 local Ray instance it starts (and stops) or on a cluster at `address`; Ray is an optional extra,
 imported only here and only when asked for.
 """
@@ -70,70 +74,137 @@ def _check_policy(workers: int, max_retries: int) -> None:
         raise UserError(f"max_retries: expected 0 or more, got {max_retries}")
 
 
-def _child(fn: Callable[[Any], Any], job: Any, conn: Connection,
-           retry_on: tuple[type[BaseException], ...] = RETRY_ON) -> None:
-    """Body of a worker process: run one job, send ("ok", value) or ("error", line, traceback, retryable)."""
+def _release_simulators() -> bool:
+    """Close any SUMO simulation a job left open in this process -> whether none was (the process is clean)."""
+    sumo = sys.modules.get("simharness.sim.sumo")
+    live = list(getattr(sumo, "_LIVE", ()))
+    for sim in live:
+        sim.close()
+    return not live
+
+
+def _worker(fn: Callable[[Any], Any], conn: Connection, retry_on: tuple[type[BaseException], ...] = RETRY_ON,
+            jobs: int | None = None) -> None:
+    """Body of a worker process: run the jobs it is sent (None: stop) until `jobs` have run; for each send
+    ("ok", value, reusable) or ("error", line, traceback, retryable). It stops after a failed job, and after a
+    job that left a simulation open (`reusable` False)."""
     try:
-        value = fn(job)
-    except BaseException as e:  # noqa: B036 - a job's KeyboardInterrupt is reported too
-        conn.send(("error", _one_line(e), traceback.format_exc(), isinstance(e, retry_on)))
-    else:
-        conn.send(("ok", value))
+        while jobs is None or jobs > 0:
+            try:
+                job = conn.recv()
+            except EOFError:  # the parent is gone
+                return
+            if job is None:
+                return
+            try:
+                value = fn(job)
+            except BaseException as e:  # noqa: B036 - a job's KeyboardInterrupt is reported too
+                conn.send(("error", _one_line(e), traceback.format_exc(), isinstance(e, retry_on)))
+                return
+            reusable = _release_simulators()
+            conn.send(("ok", value, reusable))
+            if not reusable:
+                return
+            jobs = None if jobs is None else jobs - 1
     finally:
         conn.close()
 
 
+@dataclasses.dataclass
+class _Worker:
+    """A worker process, its end of the pipe, the job it runs (with its attempt) and the jobs it has left."""
+
+    proc: Any
+    conn: Connection
+    left: int | None
+    job: Any = None
+    attempt: int = 0
+
+
 class LocalExecutor:
-    """A spawn-context process per job (and per retry), at most `workers` at once, on this machine."""
+    """Up to `workers` spawn-context worker processes on this machine, each reused for up to `jobs_per_worker`
+    jobs (None: no limit; 1: a fresh process per job)."""
 
     def __init__(self, workers: int = 2, max_retries: int = MAX_RETRIES,
-                 retry_on: tuple[type[BaseException], ...] = RETRY_ON) -> None:
+                 retry_on: tuple[type[BaseException], ...] = RETRY_ON, jobs_per_worker: int | None = 100) -> None:
         _check_policy(workers, max_retries)
+        if jobs_per_worker is not None and jobs_per_worker < 1:
+            raise UserError(f"jobs_per_worker: expected a positive number or None, got {jobs_per_worker}")
         self.workers = int(workers)
         self.max_retries = int(max_retries)
         self.retry_on = tuple(retry_on)
+        self.jobs_per_worker = jobs_per_worker
         self._ctx = mp.get_context("spawn")
+
+    def _start(self, fn: Callable[[Any], Any]) -> _Worker:
+        parent, child = self._ctx.Pipe()
+        proc = self._ctx.Process(target=_worker, args=(fn, child, self.retry_on, self.jobs_per_worker), daemon=True)
+        proc.start()
+        child.close()  # the worker holds the only other end: EOF here means it died
+        return _Worker(proc, parent, self.jobs_per_worker)
 
     def map_unordered(self, fn: Callable[[Any], Any], jobs: Sequence[Any]) -> Iterator[JobResult]:
         pending = [(job, 1) for job in reversed(list(jobs))]  # pop() from the end keeps the given order
-        running: dict[Connection, tuple[Any, int, Any]] = {}  # reader -> (job, attempt, process)
+        idle: list[_Worker] = []
+        busy: dict[Connection, _Worker] = {}
         try:
-            while pending or running:
-                while pending and len(running) < self.workers:
-                    job, attempt = pending.pop()
-                    reader, writer = self._ctx.Pipe(duplex=False)
-                    proc = self._ctx.Process(target=_child, args=(fn, job, writer, self.retry_on), daemon=True)
-                    proc.start()
-                    writer.close()  # the child holds the only writer: EOF here means it died
-                    running[reader] = (job, attempt, proc)
-                for reader in wait(list(running)):
-                    job, attempt, proc = running.pop(reader)
-                    result, retryable = self._collect(job, proc, reader)
-                    if retryable and attempt <= self.max_retries:
-                        pending.append((job, attempt + 1))  # next to start: a retry keeps its place in line
+            while pending or busy:
+                while pending and len(busy) < self.workers:
+                    w = idle.pop() if idle else self._start(fn)
+                    w.job, w.attempt = pending.pop()
+                    try:
+                        w.conn.send(w.job)
+                    except OSError:  # died before its first job (it could not start): EOF comes at once
+                        pass
+                    busy[w.conn] = w
+                for conn in wait(list(busy)):
+                    w = busy.pop(conn)
+                    result, retryable, reusable = self._collect(w)
+                    if reusable:
+                        idle.append(w)
+                    if retryable and w.attempt <= self.max_retries:
+                        pending.append((w.job, w.attempt + 1))  # next to start: a retry keeps its place in line
                     else:
-                        yield dataclasses.replace(result, attempts=attempt)
+                        yield dataclasses.replace(result, attempts=w.attempt)
         finally:
-            for reader, (_, _, proc) in running.items():  # interrupted: stop what still runs
-                proc.terminate()
-                proc.join(5)
-                reader.close()
+            for w in idle:  # done: idle workers stop when told
+                self._stop(w, ask=True)
+            for w in busy.values():  # interrupted: stop what still runs
+                self._stop(w, ask=False)
 
     @staticmethod
-    def _collect(job: Any, proc: Any, reader: Connection) -> tuple[JobResult, bool]:
-        """The job's result and whether running it again might help (its process died, or it may retry)."""
+    def _stop(w: _Worker, ask: bool) -> None:
+        if ask:
+            try:
+                w.conn.send(None)
+            except OSError:
+                pass
+            w.proc.join(5)
+        if w.proc.is_alive():
+            w.proc.terminate()
+            w.proc.join(5)
+        w.conn.close()
+
+    @staticmethod
+    def _collect(w: _Worker) -> tuple[JobResult, bool, bool]:
+        """The job's result, whether running it again might help (its process died, or it may retry), and
+        whether its worker takes another job (otherwise it has exited or is exiting: it is joined here)."""
         try:
-            msg = reader.recv()
+            msg = w.conn.recv()
         except (EOFError, OSError):
             msg = None
-        finally:
-            reader.close()
-        proc.join()
+        reusable = msg is not None and msg[0] == "ok" and msg[2]
+        if reusable and w.left is not None:
+            w.left -= 1
+            reusable = w.left > 0
+        if not reusable:
+            w.conn.close()
+            w.proc.join()
         if msg is None:
-            return JobResult(job, error=f"worker process died (exit code {proc.exitcode})"), True
+            return JobResult(w.job, error=f"worker process died (exit code {w.proc.exitcode})"), True, False
         if msg[0] == "ok":
-            return JobResult(job, value=msg[1]), False
-        return JobResult(job, error=msg[1], traceback=msg[2]), msg[3]
+            return JobResult(w.job, value=msg[1]), False, reusable
+        return JobResult(w.job, error=msg[1], traceback=msg[2]), msg[3], False
 
 
 # ---------------------------------------------------------------------- Ray

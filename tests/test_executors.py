@@ -2,13 +2,17 @@
 
 Same data set whatever the executor and the number of workers; a job whose process is killed is run
 again and the data set is whole and identical; a job that always dies is reported by seed while the
-others land, and a rerun finishes only what is missing. Faults are injected by job classes defined
-here (workers import this module by name), never by mocking the executors, Ray or SUMO.
+others land, and a rerun finishes only what is missing. The local pool reuses its worker processes,
+but never after a failed job nor after a job that left a SUMO simulation open, and reuse changes no
+result; a worker dying mid-run fails `simharness sensitivity` with one line naming the episode.
+Faults are injected by job classes defined here (workers import this module by name), never by
+mocking the executors, Ray or SUMO.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
 import signal
 import subprocess
@@ -19,7 +23,7 @@ import pytest
 
 from simharness import generation
 from simharness.errors import SimulatorError, UserError
-from simharness.executors import Executor, RayExecutor, make_executor, start_local_ray
+from simharness.executors import Executor, LocalExecutor, RayExecutor, make_executor, start_local_ray
 from simharness.generation import SceneJob, generate
 from simharness.io.parquet import TMP_PREFIX, read_manifest
 from simharness.scenario import load_scenario
@@ -102,6 +106,35 @@ def flaky(job: tuple[str, Path]):
     if kind == "die":
         os._exit(3)
     return os.getpid()
+
+
+def _sumo_job(job: tuple[int, bool]) -> int:
+    """Start SUMO for seed job[0], step once, close it unless job[1] says to leave it open; -> the process id."""
+    from simharness.sim.sumo import SumoSimulator
+
+    seed, leave_open = job
+    sim = SumoSimulator(load_scenario("sumo_arterial_dense").with_overrides({"warmup": 1.0, "duration": 1.0}))
+    sim.reset(seed)
+    sim.step()
+    if not leave_open:
+        sim.close()
+    return os.getpid()
+
+
+def _episode_scores(job):  # noqa: ANN001, ANN202 - an EpisodeJob -> its scores without timings
+    from simharness.closedloop import run_episode
+
+    scores = run_episode(job)["scores"]
+    return {k: v for k, v in scores.items() if k not in ("wall_s", "realtime_factor", "realtime_factor_with_warmup")
+            and not k.startswith("time_")}
+
+
+def _dies_on_seed_1(job):  # noqa: ANN001, ANN202 - the sensitivity job function, killed mid-episode on seed 1
+    if job.seed == 1:
+        os._exit(9)
+    from simharness.closedloop.sensitivity import run_scores
+
+    return run_scores(job)
 
 
 def executor(name: str, workers: int = 2) -> Executor:
@@ -209,3 +242,60 @@ def test_cli_generate_on_its_own_ray_instance(tmp_path: Path) -> None:
     assert run.returncode == 0, run.stderr[-2000:]
     assert "2 scenes generated" in run.stdout
     assert read_manifest(out)["num_scenes"] == 2
+
+
+def test_local_pool_reuses_workers_up_to_jobs_per_worker(tmp_path: Path) -> None:
+    one = [r.value for r in LocalExecutor(1).map_unordered(_pid, range(5))]
+    assert len(set(one)) == 1 and os.getpid() not in one  # one long-lived worker ran all five
+    fresh = [r.value for r in LocalExecutor(2, jobs_per_worker=1).map_unordered(_pid, range(4))]
+    assert len(set(fresh)) == 4  # the former behaviour: a process per job
+    pairs = [r.value for r in LocalExecutor(1, jobs_per_worker=2).map_unordered(_pid, range(5))]
+    assert [len(set(pairs[i:i + 2])) for i in (0, 2, 4)] == [1, 1, 1] and len(set(pairs)) == 3
+    # A failed job's worker is not reused: the job after it (and each retry) starts a fresh process.
+    kinds = ["ok", "bug", "ok2", "sim", "ok3"]
+    res = list(LocalExecutor(1, max_retries=1).map_unordered(flaky, [(k, tmp_path) for k in kinds]))
+    assert [r.job[0] for r in res] == ["ok", "bug", "ok2", "sim", "ok3"]  # one worker: the order is kept
+    assert res[0].ok and not res[1].ok and res[2].ok and not res[3].ok and res[4].ok and res[3].attempts == 2
+    assert res[2].value != res[0].value and res[4].value != res[2].value
+    with pytest.raises(UserError, match="jobs_per_worker"):
+        LocalExecutor(1, jobs_per_worker=0)
+
+
+def test_reused_worker_closes_what_a_job_left_open_and_sumo_runs_again() -> None:
+    """libsumo allows one simulation per process: jobs that close theirs share a worker; one that leaves its
+    simulation open gets it closed and its worker retired, and the next SUMO job still starts."""
+    res = list(LocalExecutor(1).map_unordered(_sumo_job, [(0, False), (1, False), (2, True), (3, False)]))
+    assert all(r.ok for r in res), [r.error for r in res]
+    pids = [r.value for r in res]
+    assert pids[0] == pids[1] == pids[2] and pids[3] != pids[2]
+
+
+def test_reused_workers_give_the_same_episodes_as_fresh_processes() -> None:
+    from simharness.closedloop import EpisodeJob, prepare_spec
+
+    spec = prepare_spec(load_scenario("highway_mixed_dense"), "cut_in").with_overrides(
+        {"duration": 6.0, "warmup": 5.0, "ego.insert_at": 2.0})
+    jobs = [EpisodeJob(spec, s, "const-vel", keep_scene=False) for s in (0, 1, 2)]
+    reused = {r.job.seed: r.value for r in LocalExecutor(1).map_unordered(_episode_scores, jobs)}
+    fresh = {r.job.seed: r.value for r in LocalExecutor(2, jobs_per_worker=1).map_unordered(_episode_scores, jobs)}
+    assert reused == fresh and len({json.dumps(v, sort_keys=True, default=str) for v in reused.values()}) == 3
+
+
+def test_sensitivity_worker_death_is_one_line_naming_the_episode(tmp_path: Path, monkeypatch, capsys) -> None:
+    from simharness.cli import main
+    from simharness.closedloop import sensitivity
+
+    monkeypatch.setattr(sensitivity, "run_scores", _dies_on_seed_1)
+    scenario = tmp_path / "short.toml"
+    from simharness.scenario import SCENARIO_DIR
+
+    text = (SCENARIO_DIR / "stress" / "step_out.toml").read_text()
+    scenario.write_text(text.replace("duration = 15.0", "duration = 2.0").replace("warmup = 20.0", "warmup = 2.0"))
+    out = tmp_path / "sens"
+    rc = main(["sensitivity", str(scenario), "--predictor", "const-vel", "--perturb", "noise=0", "--seeds", "0-1",
+               "--workers", "1", "--out", str(out)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc != 0
+    lines = [ln for ln in err if "failed" in ln]
+    assert len(lines) == 1 and "none seed 1: worker process died (exit code 9)" in lines[0], err
+    assert not (out / "sensitivity.json").exists() and not (out / "sensitivity.md").exists()

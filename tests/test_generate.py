@@ -1,6 +1,6 @@
 """Generation: the executor seam, and real SUMO runs into Parquet data sets (bytes, resume, refusal, stats).
 
-The executor: every job in its own spawned process; failures reported by job, the rest complete.
+The executor: jobs in spawned worker processes (one per job if asked); failures reported by job, the rest complete.
 """
 
 from __future__ import annotations
@@ -43,8 +43,8 @@ def test_raising_and_dying_jobs_fail_alone() -> None:
     assert len(died) == 1 and died[0].error == "worker process died (exit code 7)"
 
 
-def test_each_job_gets_a_fresh_process() -> None:
-    pids = [r.value for r in LocalExecutor(2).map_unordered(_pid, range(3))]
+def test_each_job_gets_a_fresh_process() -> None:  # when asked: workers are reused by default (test_executors)
+    pids = [r.value for r in LocalExecutor(2, jobs_per_worker=1).map_unordered(_pid, range(3))]
     assert len(set(pids)) == 3 and os.getpid() not in pids
 
 

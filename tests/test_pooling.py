@@ -9,10 +9,10 @@ import torch
 from torch.nn import functional as fn
 
 from predictor.features import FeatureStore, WindowConfig
+from predictor.losses import mse
 from predictor.models import build_model
 from predictor.models.rnn_ed import positions
 from predictor.models.social_gan import variety_loss
-from predictor.models.social_lstm import social_pairs
 from simharness.scene import AgentType, Scene
 
 
@@ -34,6 +34,24 @@ def batch() -> dict[str, torch.Tensor]:
     return store.batch(np.arange(0, len(store), 3)[:24]).tensors()
 
 
+def reference_pairs(pos: torch.Tensor, present: torch.Tensor, grid: tuple[int, int],
+                 extent: tuple[float, float]) -> tuple[torch.Tensor, torch.Tensor]:
+    """Which other agent sits in which cell of each agent's grid, at one step (the former social_pairs).
+
+    pos (B, A, 2) metres, present (B, A) bool -> (slot (P,), source (P,)) int64 for the P pairs (i, j) with
+    j != i, both present, j inside i's grid: slot = (b * A + i) * G + cell, source = b * A + j, G = gx * gy.
+    """
+    rel = pos[:, None, :, :] - pos[:, :, None, :]  # [b, i, j] = pos_j - pos_i
+    ix = torch.floor((rel[..., 0] + extent[0]) / (2 * extent[0]) * grid[0]).long()
+    iy = torch.floor((rel[..., 1] + extent[1]) / (2 * extent[1]) * grid[1]).long()
+    a = pos.shape[1]
+    inside = ((ix >= 0) & (ix < grid[0]) & (iy >= 0) & (iy < grid[1]) & present[:, :, None] & present[:, None, :]
+              & ~torch.eye(a, dtype=torch.bool, device=pos.device))
+    b_, i_, j_ = torch.nonzero(inside, as_tuple=True)
+    cell = ix[b_, i_, j_] * grid[1] + iy[b_, i_, j_]
+    return (b_ * a + i_) * (grid[0] * grid[1]) + cell, b_ * a + j_
+
+
 def dense_encode(model: torch.nn.Module, omega: torch.Tensor) -> torch.Tensor:
     """The former Social-LSTM encoder: every agent run, hidden states summed into a dense grid per agent."""
     cfg = model.cfg
@@ -44,7 +62,7 @@ def dense_encode(model: torch.nn.Module, omega: torch.Tensor) -> torch.Tensor:
     c = omega.new_zeros(b * a, cfg.encoder)
     for t in range(steps):
         pres = present[:, :, t]
-        slot, src = social_pairs(metres[:, :, t], pres, cfg.grid, cfg.grid_extent)
+        slot, src = reference_pairs(metres[:, :, t], pres, cfg.grid, cfg.grid_extent)
         pooled = h.new_zeros(b * a * g, cfg.encoder).index_add(0, slot, h.index_select(0, src))
         x = torch.cat([fn.relu(model.embed(metres[:, :, t] / cfg.pos_scale)).reshape(b * a, -1),
                        fn.relu(model.social(pooled.view(b * a, g * cfg.encoder)))], -1)
@@ -59,7 +77,7 @@ def test_social_lstm_pooling_equals_the_dense_grid(batch: dict[str, torch.Tensor
     model = build_model("social-lstm", {"history": 15, "future": 25})
     group = torch.cat([batch["hist"][:, None], batch["nbr"]], 1)
     metres, present = positions(group, 1.0)
-    slot, _ = social_pairs(metres[:, :, -1], present[:, :, -1], model.cfg.grid, model.cfg.grid_extent)
+    slot, _ = reference_pairs(metres[:, :, -1], present[:, :, -1], model.cfg.grid, model.cfg.grid_extent)
     assert slot.numel() > 2 * len(group) and not present.all(), "the batch must have crowded grids and gaps"
     new, old = model.encode(group), dense_encode(model, group)
     assert torch.allclose(new, old, atol=1e-5), float((new - old).abs().max())
@@ -67,6 +85,85 @@ def test_social_lstm_pooling_equals_the_dense_grid(batch: dict[str, torch.Tensor
     g_new = torch.autograd.grad(new[:, 0].square().sum(), model.social.weight)[0]
     g_old = torch.autograd.grad(dense_encode(model, group)[:, 0].square().sum(), model.social.weight)[0]
     assert torch.allclose(g_new, g_old, atol=1e-4, rtol=1e-4)
+
+
+def former_pair_layout(model: torch.nn.Module, metres: torch.Tensor, present: torch.Tensor) -> tuple[torch.Tensor, ...]:
+    """The former encoder's pair layout (commit f568a54)."""
+    cfg = model.cfg
+    b, a, steps = present.shape
+    g = cfg.grid[0] * cfg.grid[1]
+    slot, src = reference_pairs(metres.transpose(1, 2).reshape(b * steps, a, 2),
+                             present.transpose(1, 2).reshape(b * steps, a), cfg.grid, cfg.grid_extent)
+    bt, cell = slot // (a * g), slot % g  # bt = b * H + t
+    agent = (bt // steps) * a + (slot // g) % a
+    src = (src // (a * steps)) * a + src % a
+    key = (bt % steps) * g + cell
+    order = torch.argsort(key, stable=True)
+    key, agent, src, cell = key[order], agent[order], src[order], cell[order]
+    counts = torch.bincount(key, minlength=steps * g)
+    rank = torch.arange(key.numel(), device=key.device) - (torch.cumsum(counts, 0) - counts).index_select(0, key)
+    widths = counts.view(steps, g).amax(1).clamp_min(1)
+    per_step = torch.cumsum(counts.view(steps, g).sum(1), 0)
+    offsets = torch.cat([torch.zeros(1, dtype=torch.long, device=key.device), per_step])
+    return agent, src, cell * widths.index_select(0, key // g) + rank, offsets, widths
+
+
+def former_encode(model: torch.nn.Module, omega: torch.Tensor) -> torch.Tensor:
+    """Social-LSTM's encoder before the hand-written recurrence (commit f568a54), autograd through every step."""
+    cfg = model.cfg
+    b, a, steps = omega.shape[:3]
+    g = cfg.grid[0] * cfg.grid[1]
+    metres, present = positions(omega, 1.0)
+    rows = torch.nonzero(present.any(2).reshape(-1)).squeeze(1)
+    n = rows.numel()
+    compact = torch.full((b * a,), -1, dtype=torch.long, device=rows.device).index_copy_(
+        0, rows, torch.arange(n, device=rows.device))
+    agent, src, slot, offsets, widths = former_pair_layout(model, metres, present)
+    offsets, widths = offsets.tolist(), widths.tolist()
+    agent, src = compact.index_select(0, agent), compact.index_select(0, src)
+    w = model.social.weight.view(cfg.social_embed, g, cfg.encoder).permute(1, 2, 0).contiguous()  # (g, enc, soc)
+    bias = model.social.bias.expand(n, -1)
+    pres = present.reshape(b * a, steps).index_select(0, rows)
+    emb = fn.relu(model.embed(metres.reshape(b * a, steps, 2).index_select(0, rows) / cfg.pos_scale))
+    h = omega.new_zeros(n, cfg.encoder)
+    c = omega.new_zeros(n, cfg.encoder)
+    for t in range(steps):  # the recurrence itself is sequential; all agents of the batch at once
+        lo, hi, width = offsets[t], offsets[t + 1], widths[t]
+        soc = bias
+        if hi > lo:
+            sl = slot[lo:hi]
+            x = h.new_zeros(g * width, cfg.encoder).index_copy(0, sl, h.index_select(0, src[lo:hi]))
+            y = torch.bmm(x.view(g, width, -1), w).view(g * width, -1).index_select(0, sl)
+            soc = bias.index_add(0, agent[lo:hi], y)
+        h_new, c_new = model.cell(torch.cat([emb[:, t], fn.relu(soc)], -1), (h, c))
+        keep = pres[:, t, None]  # absent agents keep their state
+        h, c = torch.where(keep, h_new, h), torch.where(keep, c_new, c)
+    return omega.new_zeros(b * a, cfg.encoder).index_copy(0, rows, h).view(b, a, -1)
+
+
+def test_social_lstm_step_equals_the_former_implementation(batch: dict[str, torch.Tensor]) -> None:
+    """Forward outputs and the gradient of every parameter of a training loss, new encoder against the former."""
+    torch.manual_seed(0)
+    new = build_model("social-lstm", {"history": 15, "future": 25, "residual": True})
+    old = build_model("social-lstm", {"history": 15, "future": 25, "residual": True})
+    old.load_state_dict(new.state_dict())
+    old.encode = lambda omega: former_encode(old, omega)
+    with torch.no_grad():
+        for p in new.out.parameters():  # the residual head starts at zero: make the means depend on the encoder
+            p.normal_(0.0, 0.1)
+        old.out.load_state_dict(new.out.state_dict())
+    grads = []
+    outs = []
+    for model in (new, old):
+        out = model(batch)
+        mse(out, batch["fut"], batch["fut_valid"]).backward()
+        outs.append(out.detach())
+        grads.append({k: p.grad for k, p in model.named_parameters()})
+    assert torch.allclose(outs[0], outs[1], atol=1e-5, rtol=1e-5), float((outs[0] - outs[1]).abs().max())
+    for k, g_new in grads[0].items():
+        g_old = grads[1][k]
+        assert g_new is not None and g_old is not None and g_old.abs().max() > 0, k
+        assert torch.allclose(g_new, g_old, atol=1e-5, rtol=1e-4), (k, float((g_new - g_old).abs().max()))
 
 
 def dense_context(model: torch.nn.Module, batch: dict[str, torch.Tensor]) -> torch.Tensor:
