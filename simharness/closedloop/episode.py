@@ -137,6 +137,8 @@ def simulate(spec: ScenarioSpec, seed: int, predictor: Predictor | BranchOracle 
             frames.append(sim.step(command))
             timing["sim"] += time.perf_counter() - t3
     finally:
+        if oracle:
+            getattr(predictor, "inner", predictor).close()  # its kept branch's snapshots
         sim.close()
     meta = {"source": "closedloop", "scenario": spec.name, "seed": int(seed), "backend": spec.backend,
             "config_hash": spec.config_hash(), "road": road.to_dict()}
