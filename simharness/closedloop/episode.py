@@ -103,6 +103,8 @@ def simulate(spec: ScenarioSpec, seed: int, predictor: Predictor | BranchOracle 
     perturbed = predictor if isinstance(predictor, PerturbedPredictor) else None
     oracle = isinstance(getattr(predictor, "inner", predictor), BranchOracle)
     sim = make_simulator(spec, process=oracle)  # SUMO branches by forking its worker process
+    if oracle and perturbed is not None:  # the branches' egos are served what the live planner is
+        perturbed.inner.serve = perturbed.degrader
     try:
         t0 = time.perf_counter()
         frames: list[Frame] = [sim.reset(seed)]
