@@ -15,9 +15,17 @@ future, repeats the branch frame for frame.
 One converged branch serves every prediction for the next `window - (horizon + 2 planning
 horizons)` frames (a prediction needs its horizon, the ego's planning horizon beyond it, and one
 more for the ego's decisions there to rest on a settled future); the oracle then branches again
-from the live state, warm-started from the last branch. Where no fixed point exists (a
+from the live state, warm-started from the last branch.
+
+Cost. A round after the first does not re-simulate what it shares with the last: the ego's commands
+come out the same up to the first frame d where the check found a different one, so the round resumes
+the last branch there (from a snapshot taken every `snapshot_every` frames, its commands replayed up to
+d) and the check itself restarts from the latest of its own saved ego states that the changed frames
+cannot have reached. A spent converged branch is likewise continued from where it was verified, not
+re-rolled from the live state. Both are what re-rolling gives, frame for frame. Where no fixed point exists (a
 self-defeating forecast: told that a scooter cuts in, the ego holds back and the scooter does
-not cut in; told it does not, the ego closes up and it does) the iteration cycles; the oracle
+not cut in; told it does not, the ego closes up and it does) the iteration cycles (a round repeats an
+earlier one, or the ego's command at the first differing frame flips back to an earlier round's); the oracle
 stops there (`cycles`) or after `max_iterations` (`unconverged`) and the forecast is inexact for
 those seconds. It checks that the episode did follow the branch (`mismatches`: frames where the
 live state differed from it; each starts a new branch). Its online error is scored like any
