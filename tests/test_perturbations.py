@@ -153,3 +153,33 @@ def test_perturbed_exact_oracle_serves_degraded_forecasts():
     noisy = run_episode(EpisodeJob(spec, 0, "oracle", keep_scene=False, perturbation=Perturbation(noise=4.0)))
     assert clean["online_ade"] < 0.1
     assert noisy["scores"]["online_ade"] > clean["online_ade"] + 1.0
+
+
+def test_noise_is_fixed_by_seed_frame_and_agent():
+    """The same (seed, frame, agent) draws the same error whatever else is in the forecast (branch and live agree)."""
+    from simharness.closedloop.perturbations import Degrader, unit_normals
+
+    ids = np.array([f"a{i}" for i in range(4000)])
+    z = unit_normals(5, 12, ids)
+    assert abs(z.mean()) < 0.05 and z.std() == pytest.approx(1.0, abs=0.05)
+    np.testing.assert_array_equal(unit_normals(5, 12, ids[[7, 3]]), z[[7, 3]])
+    assert not np.allclose(unit_normals(5, 13, ids[:50]), z[:50])
+    assert not np.allclose(unit_normals(6, 12, ids[:50]), z[:50])
+    hist = _history()
+    f, targets = _clean(hist)
+    a = Degrader(Perturbation(noise=1.0), seed=5).degrade(f, hist.xy[targets, -1], hist.agent_type[targets], 12, F)
+    sub = Forecast(agent_id=f.agent_id[2:], mean=f.mean[2:], dt=f.dt)
+    b = Degrader(Perturbation(noise=1.0), seed=5).degrade(sub, hist.xy[targets[2:], -1], hist.agent_type[targets[2:]],
+                                                          12, F)
+    np.testing.assert_allclose(b.mean, a.mean[2:], atol=1e-5)
+
+
+def test_perturbed_oracle_branches_drive_on_the_degraded_forecasts():
+    """Under a perturbation the live ego keeps following the oracle's branch (its ego is served the same errors)."""
+    from simharness.closedloop import EpisodeJob, prepare_spec, run_episode
+    from simharness.scenario import load_scenario
+
+    spec = prepare_spec(load_scenario("stress/step_out"))
+    s = run_episode(EpisodeJob(spec, 0, "oracle", keep_scene=False, perturbation=Perturbation(noise=2.0)))["scores"]
+    assert s["online_ade"] > 0.5  # the errors are served ...
+    assert s["oracle_mismatches"] == 0  # ... and the live episode stays on the branch its ego was driven on

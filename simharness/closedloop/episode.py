@@ -103,6 +103,8 @@ def simulate(spec: ScenarioSpec, seed: int, predictor: Predictor | BranchOracle 
     perturbed = predictor if isinstance(predictor, PerturbedPredictor) else None
     oracle = isinstance(getattr(predictor, "inner", predictor), BranchOracle)
     sim = make_simulator(spec, process=oracle)  # SUMO branches by forking its worker process
+    if oracle and perturbed is not None:  # the branches' egos are served what the live planner is
+        perturbed.inner.serve = perturbed.degrader
     try:
         t0 = time.perf_counter()
         frames: list[Frame] = [sim.reset(seed)]
@@ -137,6 +139,8 @@ def simulate(spec: ScenarioSpec, seed: int, predictor: Predictor | BranchOracle 
             frames.append(sim.step(command))
             timing["sim"] += time.perf_counter() - t3
     finally:
+        if oracle:
+            getattr(predictor, "inner", predictor).close()  # its kept branch's snapshots
         sim.close()
     meta = {"source": "closedloop", "scenario": spec.name, "seed": int(seed), "backend": spec.backend,
             "config_hash": spec.config_hash(), "road": road.to_dict()}

@@ -15,9 +15,17 @@ future, repeats the branch frame for frame.
 One converged branch serves every prediction for the next `window - (horizon + 2 planning
 horizons)` frames (a prediction needs its horizon, the ego's planning horizon beyond it, and one
 more for the ego's decisions there to rest on a settled future); the oracle then branches again
-from the live state, warm-started from the last branch. Where no fixed point exists (a
+from the live state, warm-started from the last branch.
+
+Cost. A round after the first does not re-simulate what it shares with the last: the ego's commands
+come out the same up to the first frame d where the check found a different one, so the round resumes
+the last branch there (from a snapshot taken every `snapshot_every` frames, its commands replayed up to
+d) and the check itself restarts from the latest of its own saved ego states that the changed frames
+cannot have reached. A spent converged branch is likewise continued from where it was verified, not
+re-rolled from the live state. Both are what re-rolling gives, frame for frame. Where no fixed point exists (a
 self-defeating forecast: told that a scooter cuts in, the ego holds back and the scooter does
-not cut in; told it does not, the ego closes up and it does) the iteration cycles; the oracle
+not cut in; told it does not, the ego closes up and it does) the iteration cycles (a round repeats an
+earlier one, or the ego's command at the first differing frame flips back to an earlier round's); the oracle
 stops there (`cycles`) or after `max_iterations` (`unconverged`) and the forecast is inexact for
 those seconds. It checks that the episode did follow the branch (`mismatches`: frames where the
 live state differed from it; each starts a new branch). Its online error is scored like any
@@ -124,20 +132,48 @@ class Track:
         return bool((self.ids[rows] == ids).all() and (self.xy[rows, c] == frame.xy[o]).all())
 
 
+@dataclasses.dataclass
+class _Rollout:
+    """One branch rolled ahead from episode frame k: frames[i] is frame k + i, commands[i] the ego's there.
+
+    snaps: {i: simulator at frames[i]} every `snapshot_every` frames (resumed from, never stepped);
+    checkpoints: {i: ego state before driving frames[i]} as replanning over this branch's own track gives
+    it (the check starts at the latest); verified: the ego state before driving frame k + settled, once checked.
+    """
+
+    k: int
+    frames: list[Frame]
+    commands: list[EgoCommand | None]
+    snaps: dict[int, Any]
+    checkpoints: dict[int, tuple]
+    verified: tuple | None = None
+
+    def close(self, keep: int = -1) -> None:
+        """Close the snapshots after frame index `keep` (all when -1)."""
+        for i in [i for i in self.snaps if i > keep]:
+            self.snaps.pop(i).close()
+
+
 class BranchOracle:
     """The exact oracle (see the module docstring). The episode calls `forecast` instead of `predict`.
 
     horizon: forecast frames; plan_frames: frames of the forecast the planner uses; radius: m (targets);
-    window: frames each branch is rolled ahead; max_iterations: guess -> branch rounds per branch.
+    window: frames each branch is rolled ahead; max_iterations: guess -> branch rounds per branch;
+    snapshot_every: frames between the branch snapshots that later rounds resume from.
+    `serve`: where the live planner is served degraded forecasts (`perturbations.Degrader`), the branches'
+    egos are served the same (a copy of it, deterministic per frame and agent).
     `stats`: branches, iterations, cycles (no fixed point), unconverged, mismatches (see the module docstring).
     """
 
     def __init__(self, dt: float, horizon: int, plan_frames: int, radius: float, window: int,
-                 max_iterations: int = 4) -> None:
+                 max_iterations: int = 4, snapshot_every: int = 5) -> None:
         self.dt, self.horizon, self.plan_frames, self.radius = dt, horizon, plan_frames, radius
         self.window = max(window, horizon + 2 * plan_frames + 1)
         self.max_iterations = max_iterations
+        self.snapshot_every = max(1, snapshot_every)
+        self.serve: Any = None
         self.track: Track | None = None
+        self.last: _Rollout | None = None
         self.stats = {"branches": 0, "iterations": 0, "cycles": 0, "unconverged": 0, "mismatches": 0}
 
     def _forecast_from(self, track: Track, frame: Frame, k: int) -> Forecast | None:
@@ -153,63 +189,155 @@ class BranchOracle:
         if fresh and not self.track.matches(frame, k):
             self.stats["mismatches"] += 1
             fresh = False
+            self._drop()
         if not fresh:
             self._branch_out(k, frame, sim, planner, clock)
         return self._forecast_from(self.track, frame, k)
 
+    def close(self) -> None:
+        """Close the kept branch's snapshots (end of the episode)."""
+        self._drop()
+
+    def _drop(self) -> None:
+        if self.last is not None:
+            self.last.close()
+            self.last = None
+
+    # ------------------------------------------------------------------ the iteration
     def _branch_out(self, k: int, frame: Frame, sim: Any, planner: Planner, clock: LoopClock) -> None:
         """Iterate guess -> branch from the live state until the branch's future is the one its ego was
-        planned on (checked by replanning over the branch's frames: no simulation); keep the last branch."""
+        planned on (checked by replanning over the branch's frames: no simulation); keep the last branch.
+
+        Each round after the first resumes the last branch where the check found the ego's first different
+        command (the frames before it are the same), and a branch whose span is used up is continued from
+        where it was verified rather than re-rolled: both exactly what re-rolling from the live state gives.
+        """
         guess = self.track if self.track is not None else Track.of([frame], k)
         # The forecasts this branch will serve need the others' truth up to window - 2 planning horizons,
         # hence the ego's commands up to there; later ones rest on forecasts extrapolated past the window.
         settled = self.window - 2 * self.plan_frames
         seen: list[list[EgoCommand | None]] = []
         self.stats["branches"] += 1
-        for _ in range(self.max_iterations):
-            track, frames, commands = self._rollout(k, frame, sim, planner, clock, guess)
+        ego = self._copy((planner, clock, self.serve))
+        roll = self._slide(k, frame, sim, ego, guess) if self.last is not None else None
+        if roll is None:
+            self._drop()
+            first = sim.branch()
+            try:
+                roll = self._extend(_Rollout(k, [frame], [], {}, {0: ego}), first, self._copy(ego), guess)
+            finally:
+                first.close()
+        for it in range(self.max_iterations):
             self.stats["iterations"] += 1
-            if self._replan(k, frames, planner, clock, track, commands[:settled]):
-                break  # a fixed point: planned on its own future, the ego does what it did
-            if commands[:settled] in seen:  # a cycle: no forecast comes true there (a self-defeating one)
+            track = Track.of(roll.frames, k)
+            d, command, after = self._check(roll, track, settled)
+            if d >= settled:  # a fixed point: planned on its own future, the ego does what it did
+                roll.verified = after
+                break
+            # A cycle: no forecast comes true there (a self-defeating one): this round repeats an earlier one,
+            # or the next would start as an earlier one did (the ego's command at d flips back and forth).
+            if roll.commands[:settled] in seen or any(c[:d + 1] == roll.commands[:d] + [command] for c in seen):
                 self.stats["cycles"] += 1
                 break
-            seen.append(commands[:settled])
-            guess = track
-        else:
-            self.stats["unconverged"] += 1
-        self.track = track
+            seen.append(roll.commands[:settled])
+            if it == self.max_iterations - 1:
+                self.stats["unconverged"] += 1
+                break
+            roll = self._resume(roll, d, command, after, track)
+        self.track, self.last = Track.of(roll.frames, k), roll
 
-    def _drive(self, j: int, k: int, f: Frame, planner: Planner, clock: LoopClock, guess: Track) -> EgoCommand | None:
+    def _slide(self, k: int, frame: Frame, sim: Any, ego: tuple, guess: Track) -> _Rollout | None:
+        """The last branch continued from where it was verified, as the branch from live frame k (None where
+        it cannot be: unverified, or the live frame is not its frame k, the ego included)."""
+        last, self.last = self.last, None
+        i = k - last.k
+        settled = self.window - 2 * self.plan_frames
+        ok = last.verified is not None and 0 <= i < settled
+        if ok:
+            f = last.frames[i]
+            ok = np.array_equal(f.agent_id, frame.agent_id) and np.array_equal(f.xy, frame.xy) and f.ego == frame.ego
+        if not ok:
+            last.close()
+            return None
+        for j in [j for j in last.snaps if j <= i]:
+            last.snaps.pop(j).close()
+        snaps = {0: sim.branch(), **{j - i: s for j, s in last.snaps.items()}}  # the live simulator is at frame k
+        # The last check's ego states hold for the new branch where the forecasts before them read only frames
+        # that both branches share (up to the old settled one); frame k's is the live one (the episode ticked it).
+        checkpoints = {0: ego, **{j - i: s for j, s in last.checkpoints.items() if i < j < settled - self.horizon}}
+        roll = _Rollout(k, last.frames[i:settled + 1], last.commands[i:settled], snaps, checkpoints)
+        return self._resume_at(roll, settled - i, last.verified, guess)
+
+    def _resume(self, roll: _Rollout, d: int, command: EgoCommand | None, after: tuple, track: Track) -> _Rollout:
+        """The next round: the branch's frames up to d kept, the ego's new command at d, then on from there
+        with `after` (the checked ego state after frame d), forecasts read from `track`."""
+        roll.close(keep=d)
+        # Checked states hold where the forecasts before them read only frames up to d (the same in both rounds);
+        # the first is the live one.
+        checkpoints = {i: s for i, s in roll.checkpoints.items() if i == 0 or i < d - self.horizon}
+        new = _Rollout(roll.k, roll.frames[:d + 1], roll.commands[:d] + [command], roll.snaps, checkpoints)
+        return self._resume_at(new, d + 1, after, track, step_last=True)
+
+    def _resume_at(self, roll: _Rollout, n: int, ego: tuple, guess: Track, step_last: bool = False) -> _Rollout:
+        """Bring a simulator to frame index n of `roll` (from its latest snapshot, replaying its commands;
+        `step_last`: frame n is not recorded yet, its command is the last one), then roll on from there."""
+        base = max(j for j in roll.snaps if j <= n - (1 if step_last else 0))
+        sim = roll.snaps[base].branch()
+        try:
+            for j in range(base, n):
+                f = sim.step(roll.commands[j])
+                if j + 1 >= len(roll.frames):
+                    roll.frames.append(f)
+                if (j + 1) % self.snapshot_every == 0 and j + 1 not in roll.snaps:
+                    roll.snaps[j + 1] = sim.branch()
+            return self._extend(roll, sim, ego, guess)
+        finally:
+            sim.close()
+
+    def _extend(self, roll: _Rollout, sim: Any, ego: tuple, guess: Track) -> _Rollout:
+        """Roll `sim` (at the roll's last frame) on to `window` frames, the ego driven by `ego` on forecasts
+        read from `guess`."""
+        planner, clock, serve = ego
+        for i in range(len(roll.frames) - 1, self.window):  # frames are sequential: the loop itself
+            if i % self.snapshot_every == 0 and i not in roll.snaps:
+                roll.snaps[i] = sim.branch()
+            roll.commands.append(self._drive(roll.k + i, roll.k, roll.frames[-1], planner, clock, serve, guess))
+            roll.frames.append(sim.step(roll.commands[-1]))
+        return roll
+
+    def _check(self, roll: _Rollout, track: Track, settled: int) -> tuple[int, EgoCommand | None, tuple]:
+        """Replan over the branch's frames with forecasts read from its own track, from its latest checkpoint:
+        the first frame index d (< settled, else settled) where the ego's command differs, that command and
+        the ego state after it; the ego states on the way are kept as checkpoints."""
+        i0 = max(roll.checkpoints)
+        planner, clock, serve = self._copy(roll.checkpoints[i0])
+        for i in range(i0, settled):  # stops at the first command that differs
+            if i > i0 and i % self.snapshot_every == 0:
+                roll.checkpoints[i] = self._copy((planner, clock, serve))
+            command = self._drive(roll.k + i, roll.k, roll.frames[i], planner, clock, serve, track)
+            if command != roll.commands[i]:
+                return i, command, (planner, clock, serve)
+        return settled, None, (planner, clock, serve)
+
+    def _drive(self, j: int, k: int, f: Frame, planner: Planner, clock: LoopClock, serve: Any,
+               guess: Track) -> EgoCommand | None:
         """The ego's command at frame j of a branch started at frame k, forecasts read from `guess`."""
         if j > k and not clock.tick(f.ego >= 0):  # the episode ticked frame k already
             return None
         if clock.due(j):
-            clock.issue(j, self._forecast_from(guess, f, j))
+            forecast = self._forecast_from(guess, f, j)
+            if serve is not None and forecast is not None:  # served degraded, as the live planner is
+                rows = near_targets(f, self.radius)
+                forecast = serve.degrade(forecast, f.xy[rows], f.agent_type[rows], j, self.horizon)
+            clock.issue(j, forecast)
         return planner.plan(scene_of(f, self.dt), clock.current(j))
 
-    def _rollout(self, k: int, frame: Frame, sim: Any, planner: Planner, clock: LoopClock, guess: Track
-                 ) -> tuple[Track, list[Frame], list[EgoCommand | None]]:
-        """One branch of `window` frames from the live state, the ego planned on forecasts read from `guess`."""
-        branch = sim.branch()
-        planner, clock = copy.deepcopy(planner), copy.deepcopy(clock)
-        frames, commands = [frame], []
-        try:
-            for j in range(k, k + self.window):  # frames are sequential: the loop itself, as in the episode
-                commands.append(self._drive(j, k, frames[-1], planner, clock, guess))
-                frames.append(branch.step(commands[-1]))
-        finally:
-            branch.close()
-        return Track.of(frames, k), frames, commands
-
-    def _replan(self, k: int, frames: list[Frame], planner: Planner, clock: LoopClock, track: Track,
-                commands: list[EgoCommand | None]) -> bool:
-        """Whether the ego, fed forecasts read from `track`, gives `commands` again over the branch's frames."""
-        planner, clock = copy.deepcopy(planner), copy.deepcopy(clock)
-        for i, command in enumerate(commands):  # stops at the first command that differs
-            if self._drive(k + i, k, frames[i], planner, clock, track) != command:
-                return False
-        return True
+    @staticmethod
+    def _copy(state: tuple) -> tuple:
+        """A copy of the ego's driving state (planner, clock, degrader); the planner's road is shared (never
+        changed)."""
+        road = getattr(state[0], "road", None)
+        return copy.deepcopy(state, {} if road is None else {id(road): road})
 
 
 def scene_of(frame: Frame, dt: float) -> Scene:

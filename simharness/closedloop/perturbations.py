@@ -8,7 +8,9 @@ the perturbed forecasts is what `simharness sensitivity` plots the closed-loop f
 
 The errors, each a no-op at its default:
 - noise (m): a position error per agent and forecast, N(0, noise^2) per axis at the last forecast step,
-  growing linearly from 0 with the lead time (a velocity-like error: forecasts drift off smoothly);
+  growing linearly from 0 with the lead time (a velocity-like error: forecasts drift off smoothly); drawn
+  from (seed, frame, agent id) alone, so that the exact oracle's branches, which serve their egos the same
+  degraded forecasts as the live loop (`Degrader` copies), draw the same errors;
 - latency (frames): the planner gets the forecast made `latency` frames ago, re-timed to now (agents
   that appeared since are missing from it);
 - speed (x): each agent's displacement from its position now scaled (< 1 under-, > 1 over-estimated speed);
@@ -21,6 +23,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import zlib
 from typing import Any
 
 import numpy as np
@@ -94,11 +97,30 @@ def parse_grid(texts: list[str]) -> list[Perturbation]:
     return [Perturbation.from_items(g, f"--perturb {g}") for g in grid]
 
 
+def unit_normals(seed: int, frame: int, agent_id: np.ndarray) -> np.ndarray:
+    """(M, 2) standard normal draws fixed by (seed, frame, agent id) alone (splitmix64 hashes, Box-Muller)."""
+    keys = np.array([zlib.crc32(str(a).encode()) for a in agent_id], np.uint64)
+    base = _mix(np.array([int(seed) & 0xFFFFFFFF], np.uint64) * np.uint64(0x9E3779B97F4A7C15)
+                + np.uint64(int(frame) & 0xFFFFFFFF))
+    u = [(_mix(base ^ _mix(keys * np.uint64(2) + np.uint64(c))) >> np.uint64(11)).astype(np.float64) * 2.0**-53
+         for c in (0, 1)]  # two uniforms in [0, 1) per agent
+    r, t = np.sqrt(-2.0 * np.log1p(-u[0])), 2.0 * math.pi * u[1]
+    return np.stack([r * np.cos(t), r * np.sin(t)], -1)
+
+
+def _mix(x: np.ndarray) -> np.ndarray:
+    """splitmix64's finaliser on uint64 arrays (wrapping arithmetic)."""
+    x = (x ^ (x >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    x = (x ^ (x >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    return x ^ (x >> np.uint64(31))
+
+
 def perturb(forecast: Forecast, now_xy: np.ndarray, agent_type: np.ndarray, p: Perturbation,
-            rng: np.random.Generator) -> Forecast:
+            rng: np.random.Generator | None = None, unit_noise: np.ndarray | None = None) -> Forecast:
     """One forecast degraded by `p` (all but latency, which needs the past: see `PerturbedPredictor`).
 
-    forecast: M agents x F steps; now_xy (M, 2) m: each agent's position now; agent_type (M,) codes.
+    forecast: M agents x F steps; now_xy (M, 2) m: each agent's position now; agent_type (M,) codes;
+    the noise drawn from `rng`, or given as (M, 2) standard normal draws (`unit_noise`).
     Returns a new Forecast (M' <= M agents).
     """
     mean = forecast.mean.astype(np.float64)  # (M, F, 2)
@@ -111,7 +133,8 @@ def perturb(forecast: Forecast, now_xy: np.ndarray, agent_type: np.ndarray, p: P
     m, f = mean.shape[:2]
     if p.noise:
         grow = (np.arange(f) + 1.0) / f  # (F,): 0 now .. 1 at the last step
-        mean = mean + rng.normal(0.0, p.noise, (m, 1, 2)) * grow[None, :, None]
+        err = p.noise * unit_noise[:, None] if unit_noise is not None else rng.normal(0.0, p.noise, (m, 1, 2))
+        mean = mean + err * grow[None, :, None]
     sigma_rho = forecast.sigma_rho
     if sigma_rho is not None and p.sigma != 1.0:
         sigma_rho = np.concatenate([sigma_rho[..., :2] * p.sigma, sigma_rho[..., 2:]], -1)
@@ -140,17 +163,37 @@ def retime(forecast: Forecast, late: int, horizon: int) -> Forecast:
                     sigma_rho=sigma)
 
 
+class Degrader:
+    """What `PerturbedPredictor` does to each forecast, with its state (the past forecasts latency needs):
+    copied into the exact oracle's branches, it serves their egos what the live planner is served."""
+
+    def __init__(self, p: Perturbation, seed: int = 0) -> None:
+        self.p, self.seed = p, int(seed)
+        self._past: list[tuple[int, Forecast]] = []  # (frame made, forecast) while latency needs them
+
+    def degrade(self, forecast: Forecast, now_xy: np.ndarray, agent_type: np.ndarray, now: int,
+                horizon: int) -> Forecast:
+        """A forecast made at frame `now` (now_xy (M, 2), agent_type (M,) of its agents), degraded."""
+        noise = unit_normals(self.seed, now, forecast.agent_id) if self.p.noise else None
+        out = perturb(forecast, now_xy, agent_type, self.p, unit_noise=noise)
+        if self.p.latency <= 0:
+            return out
+        self._past = [(k, f) for k, f in self._past if k >= now - self.p.latency - horizon] + [(now, out)]
+        due = [(k, f) for k, f in self._past if k <= now - self.p.latency]
+        made, stale = due[-1] if due else self._past[0]  # the latest made long enough ago (or the oldest kept)
+        return retime(stale, now - made, horizon)
+
+
 class PerturbedPredictor:
     """Any Predictor with its forecasts degraded by a `Perturbation` (see the module docstring).
 
-    inner: the predictor; p: the errors; seed: seeds the noise (same seed, same calls -> same forecasts).
+    inner: the predictor; p: the errors; seed: seeds the noise (same seed, frame and agent -> same error).
     """
 
     def __init__(self, inner: Predictor, p: Perturbation, seed: int = 0) -> None:
         self.inner = inner
         self.p = p
-        self.rng = np.random.default_rng([int(seed), 0x5EED])
-        self._past: list[tuple[int, Forecast]] = []  # (frame made, forecast) while latency needs them
+        self.degrader = Degrader(p, seed)
 
     def predict(self, history: Scene, targets: np.ndarray, horizon: int) -> Forecast:
         """As the inner predictor's, degraded: (M' <= M, horizon, 2)."""
@@ -161,10 +204,4 @@ class PerturbedPredictor:
     def degrade(self, forecast: Forecast, now_xy: np.ndarray, agent_type: np.ndarray, now: int,
                 horizon: int) -> Forecast:
         """A forecast made at frame `now` (now_xy (M, 2), agent_type (M,) of its agents), degraded."""
-        out = perturb(forecast, now_xy, agent_type, self.p, self.rng)
-        if self.p.latency <= 0:
-            return out
-        self._past = [(k, f) for k, f in self._past if k >= now - self.p.latency - horizon] + [(now, out)]
-        due = [(k, f) for k, f in self._past if k <= now - self.p.latency]
-        made, stale = due[-1] if due else self._past[0]  # the latest made long enough ago (or the oldest kept)
-        return retime(stale, now - made, horizon)
+        return self.degrader.degrade(forecast, now_xy, agent_type, now, horizon)
