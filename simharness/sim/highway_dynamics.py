@@ -29,7 +29,6 @@ LAT_GAIN = 0.8  # 1/s: lateral speed per metre of offset from the target
 LAT_ACC = 1.5  # m/s^2: how fast the lateral speed may change
 LAT_COST = 0.35  # (m/s)/m: score lost per metre of lateral move
 LOOKAHEAD = 80.0  # m: gaps beyond this count as free road when choosing a lateral offset
-_BIG = 1e12  # m: added to masked-out entries so that an argmin passes them over (every real gap is far smaller)
 
 
 @dataclasses.dataclass
@@ -151,14 +150,14 @@ def find_leaders(
 
 def masked_argmin(values: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Row-wise argmin of values (R, m) m among the True entries of mask (R, m), ties to the first, and its
-    value: (R,) int (0 where a row has none) and (R,) m (inf where it has none). values must be < _BIG / 2."""
+    value: (R,) int (0 where a row has none) and (R,) m (inf where it has none). values must be finite."""
     if values.shape[1] == 0:
         return np.zeros(values.shape[0], np.intp), np.full(values.shape[0], np.inf)
-    v = values + ~mask * _BIG  # adding 0.0 keeps the entries that count exact; cheaper than np.where
+    v = np.where(mask, values, np.inf)
     j = np.argmin(v, axis=1)
     best = v[np.arange(v.shape[0]), j]
-    none = best >= 0.5 * _BIG
-    return np.where(none, 0, j), np.where(none, np.inf, best)
+    j[best == np.inf] = 0
+    return j, best
 
 
 def idm_acceleration(v: np.ndarray, v0: np.ndarray, a: np.ndarray, b: np.ndarray, headway: np.ndarray,
@@ -207,9 +206,8 @@ def side_windows(pw: Pairwise, vx: np.ndarray, s0: np.ndarray, sees: np.ndarray 
     """
     behind = pw.dx < 0
     follower = 0.5 * s0 + 0.5 * vx  # (n,) the follower's own part of the margin
-    closing = vx[:, None] - vx[None, :]  # i closing on j; j behind: the negation, exactly
-    np.negative(closing, out=closing, where=behind)
-    np.maximum(closing, 0.0, out=closing)
+    d = vx[:, None] - vx[None, :]
+    closing = np.where((d > 0) != behind, np.abs(d), 0.0)  # i closing on j ahead, or j behind closing on i
     margin = np.where(behind, follower[None, :], follower[:, None])
     margin += closing
     window = pw.gap < margin
@@ -288,7 +286,8 @@ def safe_lateral_moves(move: np.ndarray, vx: np.ndarray, length: np.ndarray, wid
     right edge drop by at most `down` (n,) m; hy (n,) is the current half width. Moving 0 straightens
     the agent, which never grows its box.
     """
-    opts = np.stack([move, 0.5 * move, np.zeros_like(move)])  # (3, n)
+    opts = np.zeros((3, move.size))
+    opts[0], opts[1] = move, 0.5 * move
     _, hy_new = half_extents(length, width, np.arctan2(opts / dt, vx))
     grow = hy_new - hy
     ok = (opts + grow <= up + 1e-9) & (grow - opts <= down + 1e-9)
