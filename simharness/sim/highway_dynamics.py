@@ -221,11 +221,9 @@ def side_windows(pw: Pairwise, vx: np.ndarray, s0: np.ndarray, sees: np.ndarray 
     """
     behind = pw.dx < 0
     follower = 0.5 * s0 + 0.5 * vx  # (n,) the follower's own part of the margin
-    d = vx[:, None] - vx[None, :]
-    closing = np.where((d > 0) != behind, np.abs(d), 0.0)  # i closing on j ahead, or j behind closing on i
-    margin = np.where(behind, follower[None, :], follower[:, None])
-    margin += closing
-    window = pw.gap < margin
+    follows = np.maximum(vx[:, None] - vx[None, :], 0.0)  # i closing on j ...
+    follows += follower[:, None]  # ... plus i's own part: the margin if i follows j
+    window = pw.gap < np.where(behind, follows.T, follows)  # j behind: the margin of j following i
     if sees is not None:
         window &= sees
     np.fill_diagonal(window, False)
