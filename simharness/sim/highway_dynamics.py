@@ -233,8 +233,9 @@ def side_windows(pw: Pairwise, vx: np.ndarray, s0: np.ndarray, sees: np.ndarray 
 def lateral_room(pw: Pairwise, window: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Free lateral distance (n,) to the nearest box in the side window on the left (+y) and right (m)."""
     beside = window & (pw.lat_gap >= -1e-9)  # boxes in one's own band are ahead or behind, not beside
-    gaps = np.where(beside, pw.lat_gap, np.inf)
-    return np.where(pw.dy > 0, gaps, np.inf).min(axis=1), np.where(pw.dy < 0, gaps, np.inf).min(axis=1)
+    _, left = masked_argmin(pw.lat_gap, beside & (pw.dy > 0))  # argmin and a gather beat ndarray.min here
+    _, right = masked_argmin(pw.lat_gap, beside & (pw.dy < 0))
+    return left, right
 
 
 def band_gaps(gap_rows: np.ndarray, cand_y: np.ndarray, hy_rows: np.ndarray, claim_lo: np.ndarray,
