@@ -301,10 +301,10 @@ def safe_lateral_moves(move: np.ndarray, vx: np.ndarray, length: np.ndarray, wid
     """
     opts = np.zeros((3, move.size))
     opts[0], opts[1] = move, 0.5 * move
-    _, hy_new = half_extents(length, width, np.arctan2(opts / dt, vx))
-    grow = hy_new - hy
-    ok = (opts + grow <= up + 1e-9) & (grow - opts <= down + 1e-9)
-    ok[2] = True
+    heading = np.arctan2(opts[:2] / dt, vx)  # moving 0 is always allowed: its box is not looked at
+    grow = 0.5 * (length * np.abs(np.sin(heading)) + width * np.abs(np.cos(heading))) - hy  # half_extents' hy
+    ok = np.ones((3, move.size), bool)
+    ok[:2] = (opts[:2] + grow <= up + 1e-9) & (grow - opts[:2] <= down + 1e-9)
     return opts[np.argmax(ok, axis=0), np.arange(move.size)]
 
 
