@@ -280,3 +280,28 @@ def test_ppo_trains_some_thousand_steps(env_id, cfg):
     code = f"from tests.test_envs import _ppo; print(_ppo({env_id!r}, {cfg!r}, 3000))"
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=1800)
     assert proc.returncode == 0, proc.stderr[-3000:]
+
+
+def test_reward_gap_is_safety_min_gap_bit_for_bit():
+    """The reward's per-component ego gap gives the float32 values of `safety.min_gap` (random poses, rounded
+    positions and zero headings included: the cases where a different order of operations would show)."""
+    from simharness.envs.reward import ego_gaps
+    from simharness.metrics import safety
+
+    rng = np.random.default_rng(0)
+    for it in range(300):
+        n = int(rng.integers(2, 30))
+        xy = rng.uniform(-30, 30, (n, 2)).astype(np.float32).astype(np.float64)
+        if it % 3 == 0:
+            xy = np.round(xy, 1)
+        heading = rng.uniform(-np.pi, np.pi, n).astype(np.float32).astype(np.float64)
+        heading[rng.random(n) < 0.4] = 0.0
+        length = rng.choice([0.5, 1.8, 4.5, 12.0], n)
+        width = rng.choice([0.5, 0.8, 1.8, 2.5], n)
+        e = int(rng.integers(n))
+        rows = np.flatnonzero(np.arange(n) != e)
+        sub = np.concatenate([[e], rows])
+        ref = safety.min_gap(xy[sub][:, None], heading[sub][:, None], length[sub], width[sub],
+                             np.ones((sub.size, 1), bool), 0)[1:, 0]
+        got = ego_gaps(xy, heading, length, width, e, rows)
+        assert got.dtype == np.float32 and np.array_equal(got.view(np.int32), ref.view(np.int32))

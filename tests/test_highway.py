@@ -244,3 +244,37 @@ def test_masked_argmin_ties_and_empty_rows():
     mask = np.array([[True, True, True, False], [False, True, True, False], [False, False, False, False]])
     j, best = masked_argmin(values, mask)
     assert j.tolist() == [1, 1, 0] and best.tolist() == [1.0, 2.0, np.inf]
+
+
+def test_side_windows_match_the_per_pair_margin():
+    """side_windows (one follower table and its transpose) equals the margin written out per pair: the follower's
+    half standstill gap and half speed plus its closing speed, the follower being whichever of i, j is behind."""
+    from simharness.sim import highway_dynamics as dyn
+
+    rng = np.random.default_rng(5)
+    for _ in range(30):
+        n = 30
+        x, y = np.round(rng.uniform(0, 80, n), 1), rng.uniform(-4, 4, n)
+        vx = rng.choice([0.0, 5.0, 8.0, 12.5], n) + np.round(rng.uniform(0, 2, n), 1)  # equal speeds occur
+        s0, hx, hy = rng.uniform(0.5, 3, n), rng.uniform(0.2, 6, n), rng.uniform(0.2, 1.3, n)
+        pw = dyn.pairwise(x, y, hx, hy)
+        ref = np.zeros((n, n), bool)
+        for i in range(n):
+            for j in range(n):
+                f, lead = (j, i) if pw.dx[i, j] < 0 else (i, j)  # f follows lead
+                ref[i, j] = i != j and pw.gap[i, j] < 0.5 * s0[f] + 0.5 * vx[f] + max(vx[f] - vx[lead], 0.0)
+        assert np.array_equal(dyn.side_windows(pw, vx, s0, None), ref)
+
+
+def test_may_overlap_never_rules_out_an_overlap():
+    from simharness.metrics.collisions import boxes_overlap
+    from simharness.sim.highway_dynamics import may_overlap
+
+    rng = np.random.default_rng(2)
+    p = 20000
+    rel = rng.uniform(-8, 8, (p, 2))
+    ha, la, wa = rng.uniform(-np.pi, np.pi, p), rng.uniform(0.4, 12, p), rng.uniform(0.4, 2.6, p)
+    hb, lb, wb = 0.3, 4.5, 1.8
+    hit = boxes_overlap(rel, ha, la, wa, np.zeros((p, 2)), np.full(p, hb), np.full(p, lb), np.full(p, wb))
+    may = may_overlap(rel, ha, la, wa, hb, lb, wb)
+    assert hit.any() and (~may).any() and not np.any(hit & ~may)

@@ -29,7 +29,6 @@ LAT_GAIN = 0.8  # 1/s: lateral speed per metre of offset from the target
 LAT_ACC = 1.5  # m/s^2: how fast the lateral speed may change
 LAT_COST = 0.35  # (m/s)/m: score lost per metre of lateral move
 LOOKAHEAD = 80.0  # m: gaps beyond this count as free road when choosing a lateral offset
-_BIG = 1e12  # m: added to masked-out entries so that an argmin passes them over (every real gap is far smaller)
 
 
 @dataclasses.dataclass
@@ -96,6 +95,21 @@ def half_extents(length: np.ndarray, width: np.ndarray, heading: np.ndarray) -> 
     return 0.5 * (length * c + width * s), 0.5 * (length * s + width * c)
 
 
+def may_overlap(rel: np.ndarray, ha: np.ndarray, la: np.ndarray, wa: np.ndarray, hb: float, lb: float,
+                 wb: float) -> np.ndarray:
+    """(P,) bool, False only where `boxes_overlap` is surely False: the centres (rel (P, 2) m, a minus b)
+    lie more than 1e-6 m beyond the two boxes' projection radii along one of the four box axes."""
+    ca, sa, cb, sb = np.cos(ha), np.sin(ha), np.cos(hb), np.sin(hb)
+    cos_d, sin_d = np.abs(ca * cb + sa * sb), np.abs(sa * cb - ca * sb)  # |cos|, |sin| of the angle between them
+    la, wa, lb, wb = 0.5 * la, 0.5 * wa, 0.5 * lb, 0.5 * wb
+    x, y = rel[:, 0], rel[:, 1]
+    ok = np.abs(x * ca + y * sa) <= la + lb * cos_d + wb * sin_d + 1e-6  # along a's heading
+    ok &= np.abs(y * ca - x * sa) <= wa + lb * sin_d + wb * cos_d + 1e-6  # across a
+    ok &= np.abs(x * cb + y * sb) <= lb + la * cos_d + wa * sin_d + 1e-6  # along b's heading
+    ok &= np.abs(y * cb - x * sb) <= wb + la * sin_d + wa * cos_d + 1e-6  # across b
+    return ok
+
+
 @dataclasses.dataclass(frozen=True)
 class Pairwise:
     """(n, n) relations, row i to column j.
@@ -151,14 +165,14 @@ def find_leaders(
 
 def masked_argmin(values: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Row-wise argmin of values (R, m) m among the True entries of mask (R, m), ties to the first, and its
-    value: (R,) int (0 where a row has none) and (R,) m (inf where it has none). values must be < _BIG / 2."""
+    value: (R,) int (0 where a row has none) and (R,) m (inf where it has none). values must be finite."""
     if values.shape[1] == 0:
         return np.zeros(values.shape[0], np.intp), np.full(values.shape[0], np.inf)
-    v = values + ~mask * _BIG  # adding 0.0 keeps the entries that count exact; cheaper than np.where
+    v = np.where(mask, values, np.inf)
     j = np.argmin(v, axis=1)
     best = v[np.arange(v.shape[0]), j]
-    none = best >= 0.5 * _BIG
-    return np.where(none, 0, j), np.where(none, np.inf, best)
+    j[best == np.inf] = 0
+    return j, best
 
 
 def idm_acceleration(v: np.ndarray, v0: np.ndarray, a: np.ndarray, b: np.ndarray, headway: np.ndarray,
@@ -207,12 +221,9 @@ def side_windows(pw: Pairwise, vx: np.ndarray, s0: np.ndarray, sees: np.ndarray 
     """
     behind = pw.dx < 0
     follower = 0.5 * s0 + 0.5 * vx  # (n,) the follower's own part of the margin
-    closing = vx[:, None] - vx[None, :]  # i closing on j; j behind: the negation, exactly
-    np.negative(closing, out=closing, where=behind)
-    np.maximum(closing, 0.0, out=closing)
-    margin = np.where(behind, follower[None, :], follower[:, None])
-    margin += closing
-    window = pw.gap < margin
+    follows = np.maximum(vx[:, None] - vx[None, :], 0.0)  # i closing on j ...
+    follows += follower[:, None]  # ... plus i's own part: the margin if i follows j
+    window = pw.gap < np.where(behind, follows.T, follows)  # j behind: the margin of j following i
     if sees is not None:
         window &= sees
     np.fill_diagonal(window, False)
@@ -222,7 +233,7 @@ def side_windows(pw: Pairwise, vx: np.ndarray, s0: np.ndarray, sees: np.ndarray 
 def lateral_room(pw: Pairwise, window: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Free lateral distance (n,) to the nearest box in the side window on the left (+y) and right (m)."""
     beside = window & (pw.lat_gap >= -1e-9)  # boxes in one's own band are ahead or behind, not beside
-    _, left = masked_argmin(pw.lat_gap, beside & (pw.dy > 0))
+    _, left = masked_argmin(pw.lat_gap, beside & (pw.dy > 0))  # argmin and a gather beat ndarray.min here
     _, right = masked_argmin(pw.lat_gap, beside & (pw.dy < 0))
     return left, right
 
@@ -288,11 +299,12 @@ def safe_lateral_moves(move: np.ndarray, vx: np.ndarray, length: np.ndarray, wid
     right edge drop by at most `down` (n,) m; hy (n,) is the current half width. Moving 0 straightens
     the agent, which never grows its box.
     """
-    opts = np.stack([move, 0.5 * move, np.zeros_like(move)])  # (3, n)
-    _, hy_new = half_extents(length, width, np.arctan2(opts / dt, vx))
-    grow = hy_new - hy
-    ok = (opts + grow <= up + 1e-9) & (grow - opts <= down + 1e-9)
-    ok[2] = True
+    opts = np.zeros((3, move.size))
+    opts[0], opts[1] = move, 0.5 * move
+    heading = np.arctan2(opts[:2] / dt, vx)  # moving 0 is always allowed: its box is not looked at
+    grow = 0.5 * (length * np.abs(np.sin(heading)) + width * np.abs(np.cos(heading))) - hy  # half_extents' hy
+    ok = np.ones((3, move.size), bool)
+    ok[:2] = (opts[:2] + grow <= up + 1e-9) & (grow - opts[:2] <= down + 1e-9)
     return opts[np.argmax(ok, axis=0), np.arange(move.size)]
 
 

@@ -344,8 +344,8 @@ class Traffic:
         if rows.size == 0:
             return
         grid = self._grid()
-        cand = np.concatenate([np.broadcast_to(grid, (rows.size, grid.size)),
-                               s.y[rows, None], s.y_target[rows, None]], axis=1)  # (R, C + 2)
+        cand = np.empty((rows.size, grid.size + 2))  # (R, C + 2): the grid, where one is, one's current target
+        cand[:, :-2], cand[:, -2], cand[:, -1] = grid, s.y[rows], s.y_target[rows]
         inside = np.abs(cand) + hy[rows, None] <= self.half_width - EDGE_GAP
         shift = cand - s.y[rows, None]
         reach = (shift <= room_l[rows, None] - self.min_gap_lat) & (shift >= -(room_r[rows, None] - self.min_gap_lat))
