@@ -310,50 +310,6 @@ class _SocialRecurrence(torch.autograd.Function):
         return demb, dw, dbias, dw_soc, dsum.sum(0), None, None, None
 
 
-class _ConstantInputLSTM(torch.autograd.Function):
-    """An LSTM layer whose input is the same at every step (Social-LSTM's decoder), h_0 = c_0 = 0.
-
-    x (B, I), w_ih (4D, I), w_hh (4D, D), bias (4D,) (gate order o, i, f, g: `_roll_gates`), steps -> (steps, B, D)
-    the hidden states. The input's share of the gates is computed once, not at every step, and the hidden weights'
-    gradient is one matmul over all steps (torch's fused LSTM does neither; this is about twice as fast on CPU).
-    """
-
-    @staticmethod
-    def forward(ctx: Any, x: torch.Tensor, w_ih: torch.Tensor, w_hh: torch.Tensor, bias: torch.Tensor,
-                steps: int) -> torch.Tensor:
-        b, d = x.shape[0], w_hh.shape[1]
-        gx = torch.addmm(bias, x, w_ih.t())
-        w_hh_t = w_hh.t()
-        hs = x.new_empty(steps, b, d)
-        fac = x.new_empty(steps, b, 6, d)
-        a = x.new_empty(b, 4 * d)
-        c_buf = x.new_empty(2, b, d)
-        c = None
-        for t in range(steps):
-            if t:
-                torch.addmm(gx, hs[t - 1], w_hh_t, out=a)
-            else:
-                a.copy_(gx)
-            c = _cell(a.view(b, 4, d), c, c_buf[t % 2], hs[t], fac[t])
-        ctx.save_for_backward(x, w_ih, w_hh, hs, fac)
-        return hs
-
-    @staticmethod
-    def backward(ctx: Any, dhs: torch.Tensor) -> tuple[torch.Tensor | None, ...]:
-        x, w_ih, w_hh, hs, fac = ctx.saved_tensors
-        steps, b, d = hs.shape
-        dg = hs.new_empty(steps, b, 4, d)
-        dh, dc = dhs[steps - 1], hs.new_zeros(b, d)
-        for t in range(steps - 1, -1, -1):
-            dc = _cell_backward(fac[t], dh, dc, dg[t])
-            if t:
-                dh = torch.addmm(dhs[t - 1], dg[t].view(b, 4 * d), w_hh)
-        dgf = dg.view(steps, b, 4 * d)
-        dw_hh = dgf[1:].reshape(-1, 4 * d).t() @ hs[:-1].reshape(-1, d)
-        dgx = dgf.sum(0)
-        return dgx @ w_ih, dgx.t() @ x, dw_hh, dgx.sum(0), None
-
-
 class SocialLSTM(nn.Module):
     """forward(batch) -> (B, F, 5) from batch["hist"] (B, H, D) and batch["nbr"] (B, K, H, D)."""
 
@@ -393,16 +349,21 @@ class SocialLSTM(nn.Module):
         cj = first.index_select(0, ci) + torch.arange(ci.numel(), device=dev) - torch.repeat_interleave(
             torch.cumsum(size, 0) - size, size)
         ci, cj = ci[ci != cj], cj[ci != cj]
-        pos = metres.reshape(-1, steps, 2).index_select(0, rows)
-        pres = present.reshape(-1, steps).index_select(0, rows)
-        inside, cell = grid_cells((pos.index_select(0, cj) - pos.index_select(0, ci)).transpose(0, 1), cfg.grid,
-                                  cfg.grid_extent)  # (H, C): pos_j - pos_i
-        inside &= (pres.index_select(0, ci) & pres.index_select(0, cj)).t()
-        inside[0] = False
+        # offsets of the pairs from step 1 on (every hidden state is zero at step 0), in grid units
+        pos = metres.reshape(-1, steps, 2).index_select(0, rows)[:, 1:].transpose(0, 1).contiguous()  # (H-1, N, 2)
+        pres = present.reshape(-1, steps).index_select(0, rows)[:, 1:].t().contiguous()  # (H-1, N)
+        ext, cells = pos.new_tensor(cfg.grid_extent), pos.new_tensor(cfg.grid)
+        u = (pos.index_select(1, cj) - pos.index_select(1, ci) + ext) / (2 * ext) * cells  # as in grid_cells
+        inside = ((u >= 0) & (u < cells)).all(2) & pres.index_select(1, ci) & pres.index_select(1, cj)
         in_final = torch.zeros(n + 1, dtype=torch.bool, device=dev).index_fill_(0, final, True)
-        inside[-1] &= in_final.index_select(0, ci)
-        t_, c_ = torch.nonzero(inside, as_tuple=True)  # step-major
-        cell_ = cell[t_, c_]
+        if steps > 1:
+            inside[-1] &= in_final.index_select(0, ci)
+        flat = torch.nonzero(inside.view(-1)).squeeze(1)  # step-major
+        t_ = flat // ci.numel()
+        c_ = flat - t_ * ci.numel()
+        t_ += 1
+        iu = u.view(-1, 2).index_select(0, flat).long()  # floor: u >= 0 inside
+        cell_ = iu[:, 0] * cfg.grid[1] + iu[:, 1]
         counts = torch.bincount(t_ * g + cell_, minlength=steps * g).view(steps, g).cpu().numpy()
         perm, bounds = cell_sets(counts, _SETS)
         widths = np.maximum.reduceat(counts[:, perm], bounds[:-1], axis=1)  # (H, sets): each set's fullest cell
@@ -414,18 +375,19 @@ class SocialLSTM(nn.Module):
         which = np.repeat(np.arange(len(bounds) - 1), np.diff(bounds))  # each place's set
         key = t_ * g + torch.from_numpy(ordinal).to(dev).index_select(0, cell_)
         order = _stable_order(key, steps * g)
-        key, c_ = key[order], c_[order]
+        key, c_ = key.index_select(0, order), c_.index_select(0, order)
         per_key = torch.bincount(key, minlength=steps * g)
         rank = torch.arange(key.numel(), device=dev) - (torch.cumsum(per_key, 0) - per_key).index_select(0, key)
         # each (step, place): the buffer row, within the step, of its cell's first pair
         base = set_lo[:, which] + (np.arange(g) - bounds[which]) * widths[:, which]
         col = torch.from_numpy(base.reshape(-1)).to(dev).index_select(0, key) + rank
-        step = key // g
+        step = t_  # sorting by key kept the steps in order
         row = torch.from_numpy(offsets).to(dev).index_select(0, step) + col
         ci, cj = ci.index_select(0, c_), cj.index_select(0, c_)
         at_final = torch.full((n + 1,), -1, dtype=torch.long, device=dev).index_copy_(
             0, final, torch.arange(final.numel(), device=dev))
-        ci = torch.where(step == steps - 1, at_final.index_select(0, ci), ci)
+        tail = int(per_key[-g:].sum())  # the last step's pairs, pooled by positions in `final`
+        ci[ci.numel() - tail:] = at_final.index_select(0, ci[ci.numel() - tail:])
         src = torch.full((int(offsets[-1]),), n, dtype=torch.long, device=dev).index_copy_(0, row, cj)
         agent = torch.full_like(src, n)
         agent[int(offsets[-2]):] = final.numel()
@@ -469,13 +431,7 @@ class SocialLSTM(nn.Module):
             return omega.new_zeros(b * a, cfg.encoder).index_copy(0, rows, h).view(b, a, -1)
         return omega.new_zeros(b, cfg.encoder).index_copy(0, rows.index_select(0, final) // a, h)
 
-    def decode(self, h: torch.Tensor) -> torch.Tensor:
-        """h (B, encoder) -> (B, F, decoder): the decoder LSTM over F steps of the same input h."""
-        lstm = self.decoder
-        hs = _ConstantInputLSTM.apply(h, _roll_gates(lstm.weight_ih_l0), _roll_gates(lstm.weight_hh_l0),
-                                      _roll_gates(lstm.bias_ih_l0 + lstm.bias_hh_l0), self.cfg.future)
-        return hs.transpose(0, 1)
-
     def forward(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
         group = torch.cat([batch["hist"][:, None], batch["nbr"]], 1)  # (B, 1 + K, H, D)
-        return output(self.out(self.decode(self.encode(group))), self.cfg, batch["hist"])
+        y, _ = self.decoder(self.encode(group)[:, None].expand(-1, self.cfg.future, -1))
+        return output(self.out(y), self.cfg, batch["hist"])
