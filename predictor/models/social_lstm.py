@@ -140,52 +140,37 @@ def _spread(step: torch.Tensor, rows: torch.Tensor, cols: torch.Tensor, n: int,
                 for t, (c, k) in enumerate(zip(torch.split(cols, counts), counts, strict=True))]
 
 
-def _cell(a: torch.Tensor, c_prev: torch.Tensor | None, c_out: torch.Tensor, h_out: torch.Tensor,
-          fac: torch.Tensor) -> torch.Tensor:
-    """One LSTM cell step. a (R, 4, E) the gates' pre-activations in the order (o, i, f, g), activated in place;
-    c_prev (R, E) or None for zero -> c_out (R, E) = c_t, written like h_out (R, E) = h_t; fac (R, 6, E) gets the
-    factors of the backward pass (`_cell_backward`): d o, d i, d f, d g per unit of dh, dc, dc, dc; dc_t/dh_t; f."""
-    sig = a[:, :3]
-    sig.sigmoid_()
-    a[:, 3].tanh_()
-    o, i, f, g = a.unbind(1)
-    if c_prev is None:
-        torch.mul(i, g, out=c_out)
-        fac[:, 2] = 0.0
-    else:
-        torch.addcmul(f * c_prev, i, g, out=c_out)
-    tc = torch.tanh(c_out)
-    torch.mul(o, tc, out=h_out)
-    ds = torch.addcmul(sig, sig, sig, value=-1.0)  # sigmoid' = s (1 - s)
-    torch.mul(tc, ds[:, 0], out=fac[:, 0])
-    torch.mul(g, ds[:, 1], out=fac[:, 1])
-    if c_prev is not None:
-        torch.mul(c_prev, ds[:, 2], out=fac[:, 2])
-    torch.addcmul(i, i * g, g, value=-1.0, out=fac[:, 3])  # i tanh'(g)
-    torch.addcmul(o, o * tc, tc, value=-1.0, out=fac[:, 4])  # o tanh'(c)
-    fac[:, 5] = f
-    return c_out
+def _cell(a: torch.Tensor, c_prev: torch.Tensor, c_out: torch.Tensor, tc_out: torch.Tensor,
+          h_out: torch.Tensor) -> torch.Tensor:
+    """One LSTM cell step. a (R, 4, E) the gates' pre-activations (torch's order i, f, g, o), activated in place;
+    c_prev (R, E) -> c_out (R, E) = c_t, written like tanh(c_t) into tc_out and h_t into h_out (R, E)."""
+    a[:, :2].sigmoid_()
+    a[:, 2].tanh_()
+    a[:, 3].sigmoid_()
+    c = torch.addcmul(a[:, 1] * c_prev, a[:, 0], a[:, 2], out=c_out)
+    torch.mul(a[:, 3], torch.tanh(c, out=tc_out), out=h_out)
+    return c
 
 
-def _cell_backward(fac: torch.Tensor, dh: torch.Tensor, dc: torch.Tensor, dg: torch.Tensor) -> torch.Tensor:
-    """The gradient through one `_cell` step: fac (R, 6, E) its factors, dh, dc (R, E) the loss's gradient on h_t
-    and c_t -> dc_{t-1} (R, E); dg (R, 4, E) gets the gradient on the gates' pre-activations."""
-    dct = torch.addcmul(dc, dh, fac[:, 4])  # c_t's total: direct and through h_t = o tanh(c_t)
-    torch.mul(dh, fac[:, 0], out=dg[:, 0])
-    torch.mul(fac[:, 1:4], dct[:, None], out=dg[:, 1:4])
-    return dct * fac[:, 5]
-
-
-def _roll_gates(p: torch.Tensor) -> torch.Tensor:
-    """An LSTM parameter (4E, ...) in torch's gate order (i, f, g, o) -> (o, i, f, g), the sigmoids contiguous."""
-    return torch.roll(p, p.shape[0] // 4, 0)
+def _cell_backward(a: torch.Tensor, c_prev: torch.Tensor, tc: torch.Tensor, dh: torch.Tensor, dc: torch.Tensor,
+                   dg: torch.Tensor) -> torch.Tensor:
+    """The gradient through one `_cell` step: a, c_prev, tc as it left them, dh, dc (R, E) the loss's gradient on h_t
+    and c_t -> dc_{t-1} (R, E); dg (R, 4, E) gets the gradient on the gates' pre-activations. (Factors computed in
+    the forward pass instead measured slower: more memory written than the backward pass saves.)"""
+    i, f, g, o = a.unbind(1)
+    dct = torch.addcmul(dc, dh * o, 1 - tc * tc)  # c_t's total: direct and through h_t = o tanh(c_t)
+    torch.mul(dct * g, i - i * i, out=dg[:, 0])
+    torch.mul(dct * c_prev, f - f * f, out=dg[:, 1])
+    torch.mul(dct * i, 1 - g * g, out=dg[:, 2])
+    torch.mul(dh * tc, o - o * o, out=dg[:, 3])
+    return dct * f
 
 
 class _SocialRecurrence(torch.autograd.Function):
     """The encoder's recurrence: pooling then an LSTM cell at every step, all agents at once, h_0 = c_0 = 0.
 
     emb (T, N, M): the embedded positions; w (4E, M + S + E): the cell's weights on [embedding, relu(social),
-    h_prev] (gate order o, i, f, g: `_roll_gates`), bias (4E,): both its biases; w_soc (G, E, S): the social layer
+    h_prev] (torch's gate order i, f, g, o), bias (4E,): both its biases; w_soc (G, E, S): the social layer
     per cell in the layout's cell order, b_soc (S,); layout: PairLayout; absent: per step, the rows (int64) of
     agents absent at that step, which keep their state, or None (at the last step positions in `final`); final
     (K,) int64: the rows run at the last step (the decoder reads no other). -> h (K, E), their last hidden states.
@@ -208,21 +193,22 @@ class _SocialRecurrence(torch.autograd.Function):
         x_in[0, :, m + s:] = 0.0
         x_in[:, :n, :m] = emb
         x_fin = emb.new_empty(k, m + s + e)  # the same at the last step, rows `final`
-        fac = emb.new_empty(steps, n, 6, e)
-        gates = emb.new_empty(n, 4, e)
-        c_buf = emb.new_empty(2, n, e)
+        act = emb.new_empty(steps, n, 4, e)  # sigmoid(i), sigmoid(f), tanh(g), sigmoid(o)
+        cs = emb.new_empty(steps + 1, n, e)  # c_{t-1} at t
+        cs[0] = 0.0
+        tc = emb.new_empty(steps, n, e)  # tanh(c_t) before absent agents are reset
+        c_fin = emb.new_empty(2, k, e)  # at the last step: c_{t-1} of `final`, c_t
         h_fin = emb.new_empty(k, e)
         relu_b = torch.relu(b_soc)
-        c = None
         for t in range(steps):
             h_src = x_in[t, :, m + s:]  # (N + 1, E): h_{t-1}
             if t == last:
-                cur, r = x_fin, k
+                cur, r, c, c_out, h_out = x_fin, k, c_fin[0], c_fin[1], h_fin
                 cur[:, :m] = emb[t].index_select(0, final)
                 cur[:, m + s:] = h_src.index_select(0, final)
-                c = c.index_select(0, final) if c is not None else None
+                torch.index_select(cs[t], 0, final, out=c)
             else:
-                cur, r = x_in[t, :n], n
+                cur, r, c, c_out, h_out = x_in[t, :n], n, cs[t], cs[t + 1], x_in[t + 1, :n, m + s:]
             if t and layout.blocks[t]:  # at t = 0 every h is zero: the social input is the bias alone
                 lo, hi = layout.offsets[t], layout.offsets[t + 1]
                 x = h_src.index_select(0, layout.src[lo:hi])
@@ -233,39 +219,34 @@ class _SocialRecurrence(torch.autograd.Function):
                 torch.clamp(soc[:r], min=0.0, out=cur[:, m:m + s])
             else:
                 cur[:, m:m + s] = relu_b
-            a = gates[:r]
+            a = act[t, :r]
             if t:
                 torch.addmm(bias, cur, wt, out=a.view(r, 4 * e))
             else:  # h_{-1} = 0
                 torch.addmm(bias, cur[:, :m + s], wt[:m + s], out=a.view(r, 4 * e))
-            h_out = h_fin if t == last else x_in[t + 1, :n, m + s:]
-            c_new = _cell(a, c, c_buf[t % 2, :r], h_out, fac[t, :r])
+            _cell(a, c, c_out, tc[t, :r], h_out)
             ab = absent[t]
             if ab is not None:
-                if c is None:
-                    c_new.index_fill_(0, ab, 0.0)
-                else:
-                    c_new.index_copy_(0, ab, c.index_select(0, ab))
+                c_out.index_copy_(0, ab, c.index_select(0, ab))
                 h_out.index_copy_(0, ab, cur[:, m + s:].index_select(0, ab))
-            c = c_new
         ctx.layout, ctx.absent, ctx.final = layout, absent, final
-        ctx.save_for_backward(w, w_soc, x_in, x_fin, fac)
+        ctx.save_for_backward(w, w_soc, x_in, x_fin, act, cs, tc, c_fin)
         return h_fin
 
     @staticmethod
     def backward(ctx: Any, dout: torch.Tensor) -> tuple[torch.Tensor | None, ...]:
-        w, w_soc, x_in, x_fin, fac = ctx.saved_tensors
+        w, w_soc, x_in, x_fin, act, cs, tc, c_fin = ctx.saved_tensors
         layout, absent, final = ctx.layout, ctx.absent, ctx.final
-        steps, n = fac.shape[:2]
+        steps, n = act.shape[:2]
         e, s = w_soc.shape[1:]
         m = x_in.shape[2] - s - e
         k, last = final.numel(), steps - 1
         w_soc_t = w_soc.transpose(1, 2)
-        dg_buf = fac.new_empty(n, 4, e)
-        demb = fac.new_empty(steps, n, m)
-        dsoc = fac.new_zeros(n + 1, s)
-        dw, dbias, dw_soc = torch.zeros_like(w), fac.new_zeros(4 * e), torch.zeros_like(w_soc)
-        dsum = fac.new_zeros(n, s)
+        dg_buf = act.new_empty(n, 4, e)
+        demb = act.new_empty(steps, n, m)
+        dsoc = act.new_zeros(n + 1, s)
+        dw, dbias, dw_soc = torch.zeros_like(w), act.new_zeros(4 * e), torch.zeros_like(w_soc)
+        dsum = act.new_zeros(n, s)
         dh, dc = dout, dout.new_zeros(k, e)
         for t in range(steps - 1, -1, -1):
             cur, r = (x_fin, k) if t == last else (x_in[t, :n], n)
@@ -274,7 +255,7 @@ class _SocialRecurrence(torch.autograd.Function):
                 dh_ab, dc_ab = dh.index_select(0, ab), dc.index_select(0, ab)
                 dh, dc = dh.index_fill(0, ab, 0.0), dc.index_fill(0, ab, 0.0)
             dg = dg_buf[:r]
-            dc = _cell_backward(fac[t, :r], dh, dc, dg)
+            dc = _cell_backward(act[t, :r], c_fin[0] if t == last else cs[t], tc[t, :r], dh, dc, dg)
             dgf = dg.view(r, 4 * e)
             width = m + s + e if t else m + s  # h_{-1} = 0
             dx = dgf @ w[:, :width]  # (R, M + S + E): d emb, d relu(social), d h_{t-1}
@@ -418,14 +399,14 @@ class SocialLSTM(nn.Module):
         pres = present.reshape(b * a, steps).index_select(0, rows).t()  # (H, N)
         emb = fn.relu(self.embed(metres.reshape(b * a, steps, 2).index_select(0, rows).transpose(0, 1)
                                  / cfg.pos_scale))  # (H, N, embed)
-        w = _roll_gates(torch.cat([self.cell.weight_ih, self.cell.weight_hh], 1))
+        w = torch.cat([self.cell.weight_ih, self.cell.weight_hh], 1)
         w_soc = self.social.weight.view(cfg.social_embed, g, cfg.encoder).permute(1, 2, 0).index_select(
             0, layout.perm).contiguous()
         t_, r_ = torch.nonzero(~pres[:-1], as_tuple=True)  # step-major
         absent = [ab if len(ab) else None for ab in torch.split(r_, torch.bincount(t_, minlength=steps - 1).tolist())]
         ab = torch.nonzero(~pres[-1].index_select(0, final)).squeeze(1)
         absent.append(ab if len(ab) else None)
-        h = _SocialRecurrence.apply(emb, w, _roll_gates(self.cell.bias_ih + self.cell.bias_hh), w_soc,
+        h = _SocialRecurrence.apply(emb, w, self.cell.bias_ih + self.cell.bias_hh, w_soc,
                                     self.social.bias, layout, absent, final)
         if every:
             return omega.new_zeros(b * a, cfg.encoder).index_copy(0, rows, h).view(b, a, -1)
