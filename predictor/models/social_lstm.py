@@ -132,7 +132,7 @@ def _spread(step: torch.Tensor, rows: torch.Tensor, cols: torch.Tensor, n: int,
     -> list of T (None where a step has no entry). The entries come in increasing cols within each step."""
     steps = len(sizes)
     order = _stable_order(step * n + rows, steps * n)  # CSR: by row, columns (increasing already) within a row
-    rows, cols = rows[order], cols[order]
+    rows, cols = rows.index_select(0, order), cols.index_select(0, order)
     per_row = torch.bincount(step * n + rows, minlength=steps * n).view(steps, n)
     crow = torch.cat([per_row.new_zeros(steps, 1), torch.cumsum(per_row, 1)], 1)
     counts = crow[:, -1].tolist()
@@ -332,7 +332,8 @@ class SocialLSTM(nn.Module):
         ci = torch.repeat_interleave(torch.arange(n, device=dev), size)
         cj = first.index_select(0, ci) + torch.arange(ci.numel(), device=dev) - torch.repeat_interleave(
             torch.cumsum(size, 0) - size, size)
-        ci, cj = ci[ci != cj], cj[ci != cj]
+        other = torch.nonzero(ci != cj).squeeze(1)
+        ci, cj = ci.index_select(0, other), cj.index_select(0, other)
         # offsets of the pairs from step 1 on (every hidden state is zero at step 0), in grid units
         pos = metres.reshape(-1, steps, 2).index_select(0, rows)[:, 1:].transpose(0, 1).contiguous()  # (H-1, N, 2)
         pres = present.reshape(-1, steps).index_select(0, rows)[:, 1:].t().contiguous()  # (H-1, N)
