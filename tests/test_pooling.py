@@ -8,9 +8,10 @@ import pytest
 import torch
 from torch.nn import functional as fn
 
-from predictor.features import FeatureStore, WindowConfig
+from predictor.features import FEATURES, FeatureStore, WindowConfig
 from predictor.losses import mse
 from predictor.models import build_model
+from predictor.models.gaussian import output
 from predictor.models.rnn_ed import positions
 from predictor.models.social_gan import variety_loss
 from simharness.scene import AgentType, Scene
@@ -79,8 +80,10 @@ def test_social_lstm_pooling_equals_the_dense_grid(batch: dict[str, torch.Tensor
     metres, present = positions(group, 1.0)
     slot, _ = reference_pairs(metres[:, :, -1], present[:, :, -1], model.cfg.grid, model.cfg.grid_extent)
     assert slot.numel() > 2 * len(group) and not present.all(), "the batch must have crowded grids and gaps"
-    new, old = model.encode(group), dense_encode(model, group)
+    new, old = model.encode(group, every=True), dense_encode(model, group)
     assert torch.allclose(new, old, atol=1e-5), float((new - old).abs().max())
+    target = model.encode(group)  # the targets alone (the last step runs only them)
+    assert torch.allclose(target, old[:, 0], atol=1e-5), float((target - old[:, 0]).abs().max())
     # Gradients too: the training step sees the same function.
     g_new = torch.autograd.grad(new[:, 0].square().sum(), model.social.weight)[0]
     g_old = torch.autograd.grad(dense_encode(model, group)[:, 0].square().sum(), model.social.weight)[0]
@@ -141,13 +144,31 @@ def former_encode(model: torch.nn.Module, omega: torch.Tensor) -> torch.Tensor:
     return omega.new_zeros(b * a, cfg.encoder).index_copy(0, rows, h).view(b, a, -1)
 
 
-def test_social_lstm_step_equals_the_former_implementation(batch: dict[str, torch.Tensor]) -> None:
-    """Forward outputs and the gradient of every parameter of a training loss, new encoder against the former."""
+def former_forward(model: torch.nn.Module, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+    """Social-LSTM's forward pass before the hand-written recurrences: former encoder, torch's LSTM as decoder."""
+    group = torch.cat([batch["hist"][:, None], batch["nbr"]], 1)
+    h = former_encode(model, group)[:, 0]
+    y, _ = model.decoder(h[:, None].expand(-1, model.cfg.future, -1))
+    return output(model.out(y), model.cfg, batch["hist"])
+
+
+@pytest.mark.parametrize("case", ["as built", "no neighbours", "targets absent at the last step"])
+def test_social_lstm_step_equals_the_former_implementation(batch: dict[str, torch.Tensor], case: str) -> None:
+    """Forward outputs and the gradient of every parameter of a training loss, new encoder against the former;
+    also with no pair to pool at all and with targets that keep their state at the last step."""
+    present = FEATURES.index("present")
+    batch = dict(batch)
+    if case == "no neighbours":
+        batch["nbr"] = batch["nbr"].clone()
+        batch["nbr"][..., present] = 0.0
+    elif case == "targets absent at the last step":
+        batch["hist"] = batch["hist"].clone()
+        batch["hist"][:5, -1, present] = 0.0
     torch.manual_seed(0)
     new = build_model("social-lstm", {"history": 15, "future": 25, "residual": True})
     old = build_model("social-lstm", {"history": 15, "future": 25, "residual": True})
     old.load_state_dict(new.state_dict())
-    old.encode = lambda omega: former_encode(old, omega)
+    old.forward = lambda batch: former_forward(old, batch)
     with torch.no_grad():
         for p in new.out.parameters():  # the residual head starts at zero: make the means depend on the encoder
             p.normal_(0.0, 0.1)
@@ -162,7 +183,10 @@ def test_social_lstm_step_equals_the_former_implementation(batch: dict[str, torc
     assert torch.allclose(outs[0], outs[1], atol=1e-5, rtol=1e-5), float((outs[0] - outs[1]).abs().max())
     for k, g_new in grads[0].items():
         g_old = grads[1][k]
-        assert g_new is not None and g_old is not None and g_old.abs().max() > 0, k
+        if g_old is None:  # no pair anywhere: the former graph never used the social weights
+            assert case == "no neighbours" and k == "social.weight" and not g_new.any(), k
+            continue
+        assert g_new is not None and g_old.abs().max() > 0, k
         assert torch.allclose(g_new, g_old, atol=1e-5, rtol=1e-4), (k, float((g_new - g_old).abs().max()))
 
 
