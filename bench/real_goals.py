@@ -172,12 +172,13 @@ def main() -> int:
     ap.add_argument("--data", type=Path, default=ROOT / "data" / "real14")
     ap.add_argument("--out", type=Path, default=ROOT / "runs" / "real14")
     ap.add_argument("--reuse", action="store_true")
+    ap.add_argument("--train-args", default="", help="more `simharness train` options for every run, e.g. '--augment'")
     ap.add_argument("--score-only", action="store_true", help="train nothing; score the runs already finished")
     args = ap.parse_args()
     parts = args.parts.split(",")
     seeds = [int(s) for s in args.seeds.split(",")]
     budget = ["--epochs", str(args.epochs), "--warmup-epochs", str(args.warmup_epochs),
-              "--max-samples", str(args.max_samples)]
+              "--max-samples", str(args.max_samples), *shlex.split(args.train_args)]
     paths = prepare(args)
     t0 = time.perf_counter()
     traf_folds = {"A->B": (TRAF_A, TRAF_B), "B->A": (TRAF_B, TRAF_A)}

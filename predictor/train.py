@@ -31,6 +31,7 @@ from simharness.scene import Scene
 
 VAL_SAMPLES = 4000  # validation windows scored each epoch by the CLI (a fixed, seeded subset)
 LR_SCHEDULES = ("cosine", "plateau", "constant")
+SELECT = ("loss", "mse")  # the validation criterion that picks the checkpoint (`train`)
 LR_FLOOR = 0.05  # cosine decays to this fraction of the learning rate
 LR_WARMUP = 0.05  # fraction of the steps (at most one epoch) over which the cosine schedule ramps up
 
@@ -122,7 +123,7 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
           progress: bool = True, max_val_samples: int | None = None,
           test_scenes: list[str] | None = None, cache_dir: Path | None = None, lr_schedule: str = "cosine",
           patience: int | None = None, device: str = "cpu", mean_loss: str = "nll",
-          init: str | Path | None = None) -> dict[str, Any]:
+          init: str | Path | None = None, select: str = "loss", augment: bool = False) -> dict[str, Any]:
     """Train `model` on the train split of `data`, keep the best on the val split -> summary dict.
 
     lr_schedule: "cosine" (linear warm-up over LR_WARMUP of the steps, then cosine decay to LR_FLOOR x lr),
@@ -131,13 +132,18 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
     "cuda" or "auto". mean_loss: after the warm-up, "nll" trains the means by the joint NLL (the paper), "mse" by
     MSE while sigma and rho follow the NLL around them (losses.nll_mse). init: start from these weights instead
     of random ones (fine-tuning, e.g. sim-to-real): a run folder, or "shipped" for predictor/weights/<model>; its
-    model and model config must be this run's (`init_weights`). Writes out/model.pt (the best epoch's weights),
+    model and model config must be this run's (`init_weights`). select: the validation criterion that picks the
+    checkpoint: "loss" (the epoch's own loss: MSE in the warm-up, then NLL) or "mse" (the mean error over every
+    epoch, the starting weights included: a residual model starts as constant velocity, so it ends no worse than
+    constant velocity on the validation split). augment: mirror a random half of every batch (predictor.augment).
+    Writes out/model.pt (the best epoch's weights),
     out/config.json, out/log.csv. Returns
     {"best_epoch", "best_val", "val_history", "epochs_run", "train_samples", "samples_per_s", ...}.
     """
     import torch
     from tqdm import tqdm
 
+    from predictor.augment import mirror_batch
     from predictor.losses import LOSSES, loss_for_epoch
     from predictor.models import build_model
 
@@ -146,6 +152,8 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
                         f"warm-up {warmup_epochs}, patience {patience}; expected positive numbers")
     if mean_loss not in ("nll", "mse"):
         raise UserError(f"unknown mean loss {mean_loss!r}; expected nll or mse")
+    if select not in SELECT:
+        raise UserError(f"unknown checkpoint criterion {select!r}; expected one of {', '.join(SELECT)}")
     if lr_schedule not in LR_SCHEDULES:
         raise UserError(f"unknown learning-rate schedule {lr_schedule!r}; expected one of {', '.join(LR_SCHEDULES)}")
     dev = resolve_device(device)
@@ -187,7 +195,7 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
               "train": {"epochs": epochs, "warmup_epochs": warmup_epochs, "batch_size": batch_size, "lr": lr,
                         "max_samples": max_samples, "train_samples": int(len(train_idx)),
                         "val_samples": int(len(val_idx)), "lr_schedule": lr_schedule, "patience": patience,
-                        "mean_loss": mean_loss},
+                        "mean_loss": mean_loss, "select": select, "augment": augment},
               "device": dev.type, "versions": versions()}
     if init_info is not None:
         config["train"]["init"] = init_info
@@ -202,10 +210,15 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
                      "lr"])
     best, best_epoch, stale = math.inf, -1, 0
     history = [{"epoch": 0, "loss": "init", "train": math.nan, **_epoch_eval(net, store, val_idx, batch_size, dev)}]
+    if select == "mse" and history[0]["mse"] < best:  # the starting weights are a candidate too
+        best, best_epoch = history[0]["mse"], 0
+        save_checkpoint(net, out / "model.pt")
+    grids = {"nbr": window.neighbour_grid, "hz": window.horizon_grid}
+    flips = np.random.default_rng(seed + 2)  # its own stream: the batch order is the same with or without
     samples_seen, train_time = 0, 0.0
     for epoch in range(epochs):
         kind = loss_for_epoch(epoch, warmup_epochs)
-        if epoch == warmup_epochs:
+        if epoch == warmup_epochs and select == "loss":
             best, stale = math.inf, 0  # the selection criterion switches from MSE to NLL here
         if lr_schedule == "plateau" and epoch in (0, warmup_epochs):  # a fresh plateau for each criterion
             sched = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, factor=0.5, patience=0)
@@ -215,7 +228,10 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
         bar = tqdm(range(0, len(order), batch_size), desc=f"epoch {epoch + 1}/{epochs} {kind}", unit="batch",
                    disable=not progress, leave=False)
         for i in bar:
-            b = _to(store.batch(order[i:i + batch_size]).tensors(), dev)
+            b = store.batch(order[i:i + batch_size]).tensors()
+            if augment:
+                b = mirror_batch(b, torch.from_numpy(flips.random(len(b["hist"])) < 0.5), grids)
+            b = _to(b, dev)
             if hasattr(net, "training_step"):  # a model with its own update (Social-GAN: discriminator, variety loss)
                 loss = net.training_step(b, kind, opt)
             else:
@@ -234,7 +250,7 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
         samples_seen += len(order)
         train_time += secs
         val = _epoch_eval(net, store, val_idx, batch_size, dev)
-        crit = val[kind]
+        crit = val["mse" if select == "mse" else kind]
         if lr_schedule == "plateau":
             sched.step(crit)
         history.append({"epoch": epoch + 1, "loss": kind, "train": tot / max(nb, 1), **val})
@@ -304,11 +320,12 @@ def train_command(args: argparse.Namespace) -> int:
                 model_config={"residual": bool(getattr(args, "residual", True))},
                 lr_schedule=getattr(args, "lr_schedule", "cosine"), patience=getattr(args, "patience", None),
                 device=getattr(args, "device", "auto"), mean_loss=getattr(args, "mean_loss", "mse"),
-                init=getattr(args, "init", None))
+                init=getattr(args, "init", None), select=getattr(args, "select", "loss"),
+                augment=getattr(args, "augment", False))
     if set(res["config"]["split"]["val"]) & set(res["config"]["split"]["train"]):
         print(f"note: one scene left to train on, so validation (checkpoint choice) used the training scene(s) "
               f"{', '.join(res['config']['split']['train'])}")
-    kind = "nll" if res["best_epoch"] > args.warmup_epochs else "mse"
+    kind = "nll" if res["best_epoch"] > args.warmup_epochs and res["config"]["train"]["select"] == "loss" else "mse"
     print(f"{args.model}: best epoch {res['best_epoch']} of {res['epochs_run']} (val {kind} {res['best_val']:.3f}), "
           f"{res['train_samples']} training windows, {res['samples_per_s']:.0f} samples/s -> {args.out}")
     return 0

@@ -147,6 +147,11 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--residual", action=argparse.BooleanOptionalAction, default=True,
                    help="predict a correction to constant-velocity extrapolation (default) or, with --no-residual, "
                         "the means directly as in the paper")
+    t.add_argument("--select", choices=["loss", "mse"], default="loss",
+                   help="the validation criterion that picks the checkpoint: loss (default: MSE in the warm-up, then "
+                        "NLL) or mse (mean error over every epoch, the starting weights included)")
+    t.add_argument("--augment", action=argparse.BooleanOptionalAction, default=False,
+                   help="mirror a random half of every batch left-right (default off)")
 
     e = cmd("evaluate", "simharness.evaluation:evaluate_command", "score a predictor open-loop on a data set")
     e.add_argument("--data", type=Path, required=True)

@@ -78,3 +78,23 @@ def test_old_checkpoints_load_in_the_papers_form(tmp_path) -> None:
           threads=1, progress=False, model_config={"residual": True}, cache_dir=tmp_path / "cache")
     run = ModelPredictor.from_run(tmp_path / "run")
     assert run.info["model_config"]["residual"] is True and run.model.cfg.residual is True
+
+
+def test_select_mse_keeps_the_starting_weights_when_training_only_hurts(tmp_path) -> None:
+    """`select="mse"`: the starting weights (constant velocity, for a residual model) are a candidate, so a run whose
+    every epoch is worse on validation keeps them; with augmentation on, training still runs and records it."""
+    data = write_flow_dataset(tmp_path / "data", scenes=5)
+    # A learning rate so large that every epoch ends worse than constant velocity on validation.
+    res = train(data, "rnn-ed", tmp_path / "hurt", epochs=2, warmup_epochs=1, batch_size=64, max_samples=256,
+                lr=5.0, progress=False, select="mse", augment=True, model_config={"residual": True})
+    assert res["best_epoch"] == 0 and res["best_val"] == res["val_history"][0]["mse"]
+    assert all(h["mse"] > res["best_val"] for h in res["val_history"][1:])
+    assert res["config"]["train"]["select"] == "mse" and res["config"]["train"]["augment"] is True
+    pred = ModelPredictor.from_run(tmp_path / "hurt")
+    scene = flow_scene(9, n=8, t=16)
+    cv = ConstantVelocity().predict(scene, np.arange(8), 25).mean
+    assert np.abs(pred.predict(scene, np.arange(8), 25).mean - cv).max() < 1e-3
+    # a sane learning rate moves away from the start where training helps
+    res = train(data, "rnn-ed", tmp_path / "ok", epochs=2, warmup_epochs=1, batch_size=64, max_samples=512,
+                progress=False, select="mse", model_config={"residual": True})
+    assert res["best_epoch"] >= 1 and res["best_val"] < res["val_history"][0]["mse"]
