@@ -31,7 +31,7 @@ from simharness.scene import Scene
 
 VAL_SAMPLES = 4000  # validation windows scored each epoch by the CLI (a fixed, seeded subset)
 LR_SCHEDULES = ("cosine", "plateau", "constant")
-SELECT = ("loss", "mse")  # the validation criterion that picks the checkpoint (`train`)
+SELECT = ("loss", "mse", "ade")  # the validation criterion that picks the checkpoint (`train`)
 LR_FLOOR = 0.05  # cosine decays to this fraction of the learning rate
 LR_WARMUP = 0.05  # fraction of the steps (at most one epoch) over which the cosine schedule ramps up
 
@@ -99,9 +99,9 @@ def _to(batch: dict[str, Any], device: Any) -> dict[str, Any]:
 def _epoch_eval(model: Any, store: FeatureStore, idx: np.ndarray, batch_size: int, device: Any) -> dict[str, float]:
     import torch
 
-    from predictor.losses import gaussian_nll, mse
+    from predictor.losses import ade, gaussian_nll, mse
 
-    tot = {"mse": 0.0, "nll": 0.0}
+    tot = {"mse": 0.0, "nll": 0.0, "ade": 0.0}
     n = 0
     model.eval()
     with torch.inference_mode():
@@ -111,6 +111,7 @@ def _epoch_eval(model: Any, store: FeatureStore, idx: np.ndarray, batch_size: in
             w = float(b["fut_valid"].sum())
             tot["mse"] += float(mse(out, b["fut"], b["fut_valid"])) * w
             tot["nll"] += float(gaussian_nll(out, b["fut"], b["fut_valid"])) * w
+            tot["ade"] += float(ade(out, b["fut"], b["fut_valid"])) * w
             n += w
     model.train()
     return {k: v / max(n, 1) for k, v in tot.items()}
@@ -130,28 +131,29 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
     "plateau" (halve when an epoch does not improve validation) or "constant". patience: stop after this many
     epochs of the NLL phase without a better validation criterion (None: run every epoch). device: "cpu",
     "cuda" or "auto". mean_loss: after the warm-up, "nll" trains the means by the joint NLL (the paper), "mse" by
-    MSE while sigma and rho follow the NLL around them (losses.nll_mse). init: start from these weights instead
+    MSE while sigma and rho follow the NLL around them (losses.nll_mse), "ade" likewise by the mean Euclidean error
+    (losses.nll_ade; the warm-up too: robust to the huge misses of real tracks). init: start from these weights instead
     of random ones (fine-tuning, e.g. sim-to-real): a run folder, or "shipped" for predictor/weights/<model>; its
     model and model config must be this run's (`init_weights`). select: the validation criterion that picks the
-    checkpoint: "loss" (the epoch's own loss: MSE in the warm-up, then NLL) or "mse" (the mean error over every
-    epoch, the starting weights included: a residual model starts as constant velocity, so it ends no worse than
-    constant velocity on the validation split). augment: mirror a random half of every batch (predictor.augment).
-    Writes out/model.pt (the best epoch's weights),
-    out/config.json, out/log.csv. Returns
+    checkpoint: "loss" (the epoch's own loss: MSE in the warm-up, then NLL), or "mse" / "ade" (the means' squared or
+    Euclidean error over every epoch, the starting weights included: a residual model starts as constant
+    velocity, so it ends no worse than constant velocity on the validation split). augment: mirror a random half
+    of every batch (predictor.augment). Writes out/model.pt (the best epoch's weights), out/config.json,
+    out/log.csv. Returns
     {"best_epoch", "best_val", "val_history", "epochs_run", "train_samples", "samples_per_s", ...}.
     """
     import torch
     from tqdm import tqdm
 
     from predictor.augment import mirror_batch
-    from predictor.losses import LOSSES, loss_for_epoch
+    from predictor.losses import LOSSES, loss_for_epoch, loss_name
     from predictor.models import build_model
 
     if epochs < 1 or batch_size < 1 or not lr > 0 or warmup_epochs < 0 or (patience is not None and patience < 1):
         raise UserError(f"bad training settings: epochs {epochs}, batch size {batch_size}, lr {lr}, "
                         f"warm-up {warmup_epochs}, patience {patience}; expected positive numbers")
-    if mean_loss not in ("nll", "mse"):
-        raise UserError(f"unknown mean loss {mean_loss!r}; expected nll or mse")
+    if mean_loss not in ("nll", "mse", "ade"):
+        raise UserError(f"unknown mean loss {mean_loss!r}; expected nll, mse or ade")
     if select not in SELECT:
         raise UserError(f"unknown checkpoint criterion {select!r}; expected one of {', '.join(SELECT)}")
     if lr_schedule not in LR_SCHEDULES:
@@ -210,8 +212,8 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
                      "lr"])
     best, best_epoch, stale = math.inf, -1, 0
     history = [{"epoch": 0, "loss": "init", "train": math.nan, **_epoch_eval(net, store, val_idx, batch_size, dev)}]
-    if select == "mse" and history[0]["mse"] < best:  # the starting weights are a candidate too
-        best, best_epoch = history[0]["mse"], 0
+    if select != "loss" and history[0][select] < best:  # the starting weights are a candidate too
+        best, best_epoch = history[0][select], 0
         save_checkpoint(net, out / "model.pt")
     grids = {"nbr": window.neighbour_grid, "hz": window.horizon_grid}
     flips = np.random.default_rng(seed + 2)  # its own stream: the batch order is the same with or without
@@ -235,7 +237,7 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
             if hasattr(net, "training_step"):  # a model with its own update (Social-GAN: discriminator, variety loss)
                 loss = net.training_step(b, kind, opt)
             else:
-                fn = LOSSES["nll+mse" if kind == "nll" and mean_loss == "mse" else kind]
+                fn = LOSSES[loss_name(kind, mean_loss)]
                 loss = fn(net(b), b["fut"], b["fut_valid"])
                 opt.zero_grad()
                 loss.backward()
@@ -250,7 +252,7 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
         samples_seen += len(order)
         train_time += secs
         val = _epoch_eval(net, store, val_idx, batch_size, dev)
-        crit = val["mse" if select == "mse" else kind]
+        crit = val[kind if select == "loss" else select]
         if lr_schedule == "plateau":
             sched.step(crit)
         history.append({"epoch": epoch + 1, "loss": kind, "train": tot / max(nb, 1), **val})
@@ -325,7 +327,8 @@ def train_command(args: argparse.Namespace) -> int:
     if set(res["config"]["split"]["val"]) & set(res["config"]["split"]["train"]):
         print(f"note: one scene left to train on, so validation (checkpoint choice) used the training scene(s) "
               f"{', '.join(res['config']['split']['train'])}")
-    kind = "nll" if res["best_epoch"] > args.warmup_epochs and res["config"]["train"]["select"] == "loss" else "mse"
+    select = res["config"]["train"]["select"]
+    kind = select if select != "loss" else "nll" if res["best_epoch"] > args.warmup_epochs else "mse"
     print(f"{args.model}: best epoch {res['best_epoch']} of {res['epochs_run']} (val {kind} {res['best_val']:.3f}), "
           f"{res['train_samples']} training windows, {res['samples_per_s']:.0f} samples/s -> {args.out}")
     return 0

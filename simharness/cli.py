@@ -141,15 +141,17 @@ def build_parser() -> argparse.ArgumentParser:
                         "epoch's weights are kept)")
     t.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"],
                    help="auto (default): CUDA when torch sees a GPU, else the CPU")
-    t.add_argument("--mean-loss", choices=["nll", "mse"], default="mse",
+    t.add_argument("--mean-loss", choices=["nll", "mse", "ade"], default="mse",
                    help="after the MSE warm-up: mse (default) keeps the means on MSE while sigma and rho follow the "
-                        "Gaussian NLL; nll trains the means by the NLL too (the paper)")
+                        "Gaussian NLL; nll trains the means by the NLL too (the paper); ade fits the means by the mean "
+                        "Euclidean error, warm-up included (robust to the huge misses of real tracks)")
     t.add_argument("--residual", action=argparse.BooleanOptionalAction, default=True,
                    help="predict a correction to constant-velocity extrapolation (default) or, with --no-residual, "
                         "the means directly as in the paper")
-    t.add_argument("--select", choices=["loss", "mse"], default="loss",
+    t.add_argument("--select", choices=["loss", "mse", "ade"], default="loss",
                    help="the validation criterion that picks the checkpoint: loss (default: MSE in the warm-up, then "
-                        "NLL) or mse (mean error over every epoch, the starting weights included)")
+                        "NLL), or mse / ade (the means' squared / Euclidean error over every epoch, the starting "
+                        "weights included)")
     t.add_argument("--augment", action=argparse.BooleanOptionalAction, default=False,
                    help="mirror a random half of every batch left-right (default off)")
 
