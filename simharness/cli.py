@@ -148,6 +148,9 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--residual", action=argparse.BooleanOptionalAction, default=True,
                    help="predict a correction to constant-velocity extrapolation (default) or, with --no-residual, "
                         "the means directly as in the paper")
+    t.add_argument("--cv-lags", type=int, default=1,
+                   help="residual form: extrapolate from the last displacement (1, default) plus a learned blend of "
+                        "the mean displacements over up to this many steps (noisy real tracks; not Social-GAN)")
     t.add_argument("--select", choices=["loss", "mse", "ade"], default="loss",
                    help="the validation criterion that picks the checkpoint: loss (default: MSE in the warm-up, then "
                         "NLL), or mse / ade (the means' squared / Euclidean error over every epoch, the starting "

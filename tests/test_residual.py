@@ -15,6 +15,7 @@ from predictor.models.const_vel import ConstantVelocity
 from predictor.models.gaussian import cv_extrapolation
 from predictor.predict import ModelPredictor
 from predictor.train import train
+from simharness.errors import UserError
 
 ALL = ("traphic", "traphic-b", "rnn-ed", "social-lstm", "social-gan", "cs-lstm")
 
@@ -98,3 +99,39 @@ def test_select_mse_keeps_the_starting_weights_when_training_only_hurts(tmp_path
     res = train(data, "rnn-ed", tmp_path / "ok", epochs=2, warmup_epochs=1, batch_size=64, max_samples=512,
                 progress=False, select="mse", model_config={"residual": True})
     assert res["best_epoch"] >= 1 and res["best_val"] < res["val_history"][0]["mse"]
+
+
+def test_lag_blend_starts_as_the_model_it_wraps_and_learns_to_smooth_a_jittery_velocity(batch) -> None:
+    """cv_lags > 1: at initialisation exactly the residual model of cv_lags 1 (so constant velocity); on tracks whose
+    last displacement is jitter around a steady motion, fitting the blend alone brings the error down."""
+    from predictor.models.gaussian import LagBlend, lag_steps
+
+    cfg = {"history": 15, "future": 25, "residual": True}
+    torch.manual_seed(0)
+    plain = build_model("rnn-ed", {**cfg, "cv_lags": 1})
+    torch.manual_seed(0)
+    blend = build_model("rnn-ed", {**cfg, "cv_lags": 5})
+    assert isinstance(blend, LagBlend) and blend.name == "rnn-ed" and blend.cfg.cv_lags == 5
+    assert torch.equal(plain(batch), blend(batch))
+    # lag l: (now - l steps back) / l
+    hist = batch["hist"].clone()
+    d = lag_steps(hist, 5)
+    assert d.shape == (len(hist), 4, 2)
+    assert torch.allclose(d[:, 2], (hist[:, -1, :2] - hist[:, -5, :2]) / 4)
+    # steady 1 m per step along x with +-0.4 m of jitter on every other position
+    t = torch.arange(15, dtype=torch.float32)
+    xy = torch.stack([t + 0.4 * (t % 2) - 14, torch.zeros(15)], -1)
+    hist[:, :, :2] = xy
+    fut = torch.stack([torch.arange(1, 26, dtype=torch.float32) + xy[-1, 0], torch.zeros(25)], -1)
+    jb = {**batch, "hist": hist, "fut": fut.expand(len(hist), -1, -1).clone()}
+    before = float(mse(blend(jb), jb["fut"], jb["fut_valid"]).detach())
+    opt = torch.optim.Adam([blend.w], lr=1e-2)
+    for _ in range(100):
+        loss = mse(blend(jb), jb["fut"], jb["fut_valid"])
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    assert float(loss) < 0.2 * before and float(blend.w.abs().sum()) > 0
+    with pytest.raises(UserError, match="cv_lags"):
+        build_model("rnn-ed", {**cfg, "cv_lags": 15})
+    assert build_model("social-gan", {**cfg, "cv_lags": 5}).cfg.cv_lags == 1
