@@ -50,41 +50,21 @@ def lag_steps(hist: torch.Tensor, lags: int) -> torch.Tensor:
     return torch.where(present[:, -1 - ls, None], d, cv_step(hist)[:, None])
 
 
-def straightness(hist: torch.Tensor, lags: int) -> torch.Tensor:
-    """(B, lags - 1) in [0, 1]: for l = 2 .. lags, the target's displacement over its last l steps divided by the
-    length of its path over them: 1 for a steady motion, near 0 for jitter in place (detected boxes); 1 where the
-    target was absent l steps back. Unit-free, so it reads the same in metres and in pixels."""
-    xy, present = hist[..., _XY], hist[..., _PRESENT] > 0.5
-    seg = torch.linalg.norm(xy[:, -lags:] - xy[:, -lags - 1:-1], dim=-1).flip(1)  # (B, lags): newest first
-    path = torch.cumsum(seg, 1)[:, 1:]  # (B, lags - 1): path over the last 2 .. lags steps
-    ls = torch.arange(2, lags + 1, device=hist.device)
-    disp = torch.linalg.norm(xy[:, -1, None] - xy[:, -1 - ls], dim=-1)
-    ok = present[:, -1 - ls] & present[:, -1, None]
-    return torch.where(ok, disp / (path + 1e-3), torch.ones_like(disp)).clamp(0, 1)
-
-
 class LagBlend(nn.Module):
     """A residual model whose constant velocity is the last displacement plus a learned blend of longer lags:
-    means + k * sum_l w_l (lag_steps_l - cv_step) at future step k, with weights w = w0 + G s per target, s its
-    `straightness` over each lag (so it can smooth jitter in place and keep the last displacement for a clean
-    turn). w0 and G start at zero (exactly the model it wraps) and are learned with the rest; `cfg`, `name` and the
-    Gaussian of the wrapped model are kept."""
+    means + k * sum_l w_l (lag_steps_l - cv_step) at future step k. w starts at zero (exactly the model it wraps)
+    and is learned with the rest; `cfg`, `name` and the Gaussian of the wrapped model are kept."""
 
     RATE = 10.0  # w is stored divided by this, so Adam's steps move it as fast as the network's outputs
 
     def __init__(self, net: nn.Module) -> None:
         super().__init__()
         self.net, self.cfg = net, net.cfg
-        n = net.cfg.cv_lags - 1
-        self.w = nn.Parameter(torch.zeros(n))
-        self.gate = nn.Linear(n, n)
-        zero_means(self.gate, n)
+        self.w = nn.Parameter(torch.zeros(net.cfg.cv_lags - 1))
 
     def forward(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
         out, hist = self.net(batch), batch["hist"]
-        lags = self.cfg.cv_lags
-        w = (self.w + self.gate(straightness(hist, lags))) * self.RATE  # (B, lags - 1)
-        delta = ((lag_steps(hist, lags) - cv_step(hist)[:, None]) * w[..., None]).sum(1)
+        delta = ((lag_steps(hist, self.cfg.cv_lags) - cv_step(hist)[:, None]) * (self.w * self.RATE)[:, None]).sum(1)
         k = torch.arange(1, out.shape[1] + 1, device=out.device, dtype=out.dtype)
         return torch.cat([out[..., :2] + k[None, :, None] * delta[:, None], out[..., 2:]], -1)
 
