@@ -11,7 +11,8 @@ Parts (each prints a markdown table; the numbers in docs/results.md "Issue 14: r
   trained on one and scored on the other, both directions; TraPHic vs CS-LSTM vs constant velocity.
 - apollo: ApolloScape sample, split by scene hash; TraPHic vs constant velocity with the `apolloscape` protocol.
 - sim2real: the TRAF folds again, TraPHic in the paper's form fine-tuned from the shipped weights (trained on
-  `simharness generate` SUMO data; `train --init shipped`) vs the same model trained on the real videos alone.
+  `simharness generate` SUMO data; `train --init shipped`) vs the same model trained on the real videos alone;
+  with `--init RUN`, a residual TraPHic pre-trained on generated data (run folder RUN) instead, both arms residual.
 
 Scores are per held-out scene (`simharness.evaluation.evaluate`, the code behind `simharness evaluate`), so that a
 difference between two methods gets a 95% bootstrap CI over test scenes (paired, seeds averaged per scene).
@@ -172,12 +173,16 @@ def main() -> int:
     ap.add_argument("--data", type=Path, default=ROOT / "data" / "real14")
     ap.add_argument("--out", type=Path, default=ROOT / "runs" / "real14")
     ap.add_argument("--reuse", action="store_true")
+    ap.add_argument("--init", default="shipped",
+                    help="sim2real's pre-trained weights: shipped (the paper's form, as shipped) or a run folder of a "
+                         "residual TraPHic trained on `simharness generate` data (then both arms are residual)")
+    ap.add_argument("--train-args", default="", help="more `simharness train` options for every run, e.g. '--augment'")
     ap.add_argument("--score-only", action="store_true", help="train nothing; score the runs already finished")
     args = ap.parse_args()
     parts = args.parts.split(",")
     seeds = [int(s) for s in args.seeds.split(",")]
     budget = ["--epochs", str(args.epochs), "--warmup-epochs", str(args.warmup_epochs),
-              "--max-samples", str(args.max_samples)]
+              "--max-samples", str(args.max_samples), *shlex.split(args.train_args)]
     paths = prepare(args)
     t0 = time.perf_counter()
     traf_folds = {"A->B": (TRAF_A, TRAF_B), "B->A": (TRAF_B, TRAF_A)}
@@ -204,9 +209,10 @@ def main() -> int:
                     jobs.append((run, ["--data", str(paths["traf"]), "--model", model, *held, *budget, *s]))
                     plan.setdefault("traf", {}).setdefault(fold, {}).setdefault(model, []).append(run)
             if "sim2real" in parts:
-                for name, init in (("traphic-init", ["--init", "shipped"]), ("traphic-scratch", [])):
+                form = ["--no-residual"] if args.init == "shipped" else []
+                for name, init in (("traphic-init", ["--init", args.init]), ("traphic-scratch", [])):
                     run = args.out / "sim2real" / f"{name}-{tag}-s{seed}"
-                    jobs.append((run, ["--data", str(paths["traf"]), "--no-residual", *init, *held, *budget, *s]))
+                    jobs.append((run, ["--data", str(paths["traf"]), *form, *init, *held, *budget, *s]))
                     plan.setdefault("sim2real", {}).setdefault(fold, {}).setdefault(name, []).append(run)
         if "apollo" in parts:
             run = args.out / "apollo" / f"traphic-s{seed}"
@@ -230,8 +236,7 @@ def main() -> int:
             ids = Dataset(data).scene_ids
             test = held_ids[fold] if part in ("traf", "sim2real") else split_scenes(ids)["test"]
             scored[fold] = {m: [per_scene(data, str(r), protocol, test) for r in runs] for m, runs in methods.items()}
-            if part != "sim2real":
-                scored[fold]["const-vel"] = [per_scene(data, "const-vel", protocol, test)]
+            scored[fold]["const-vel"] = [per_scene(data, "const-vel", protocol, test)]
         ref = "traphic-scratch" if part == "sim2real" else "const-vel"
         units = "px" if part in ("traf", "sim2real") else "m"
         print(f"\n{table(f'{part}: protocol {protocol}', units, scored, ref)}\n", flush=True)

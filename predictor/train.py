@@ -31,6 +31,8 @@ from simharness.scene import Scene
 
 VAL_SAMPLES = 4000  # validation windows scored each epoch by the CLI (a fixed, seeded subset)
 LR_SCHEDULES = ("cosine", "plateau", "constant")
+SELECT = ("loss", "mse", "ade")  # the validation criterion that picks the checkpoint (`train`)
+AUTO_LAGS = 5  # the longest lag `cv_lags = auto` considers (1 s at 5 Hz)
 LR_FLOOR = 0.05  # cosine decays to this fraction of the learning rate
 LR_WARMUP = 0.05  # fraction of the steps (at most one epoch) over which the cosine schedule ramps up
 
@@ -98,9 +100,9 @@ def _to(batch: dict[str, Any], device: Any) -> dict[str, Any]:
 def _epoch_eval(model: Any, store: FeatureStore, idx: np.ndarray, batch_size: int, device: Any) -> dict[str, float]:
     import torch
 
-    from predictor.losses import gaussian_nll, mse
+    from predictor.losses import ade, gaussian_nll, mse
 
-    tot = {"mse": 0.0, "nll": 0.0}
+    tot = {"mse": 0.0, "nll": 0.0, "ade": 0.0}
     n = 0
     model.eval()
     with torch.inference_mode():
@@ -110,6 +112,7 @@ def _epoch_eval(model: Any, store: FeatureStore, idx: np.ndarray, batch_size: in
             w = float(b["fut_valid"].sum())
             tot["mse"] += float(mse(out, b["fut"], b["fut_valid"])) * w
             tot["nll"] += float(gaussian_nll(out, b["fut"], b["fut_valid"])) * w
+            tot["ade"] += float(ade(out, b["fut"], b["fut_valid"])) * w
             n += w
     model.train()
     return {k: v / max(n, 1) for k, v in tot.items()}
@@ -122,30 +125,38 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
           progress: bool = True, max_val_samples: int | None = None,
           test_scenes: list[str] | None = None, cache_dir: Path | None = None, lr_schedule: str = "cosine",
           patience: int | None = None, device: str = "cpu", mean_loss: str = "nll",
-          init: str | Path | None = None) -> dict[str, Any]:
+          init: str | Path | None = None, select: str = "loss", augment: bool = False) -> dict[str, Any]:
     """Train `model` on the train split of `data`, keep the best on the val split -> summary dict.
 
     lr_schedule: "cosine" (linear warm-up over LR_WARMUP of the steps, then cosine decay to LR_FLOOR x lr),
     "plateau" (halve when an epoch does not improve validation) or "constant". patience: stop after this many
     epochs of the NLL phase without a better validation criterion (None: run every epoch). device: "cpu",
     "cuda" or "auto". mean_loss: after the warm-up, "nll" trains the means by the joint NLL (the paper), "mse" by
-    MSE while sigma and rho follow the NLL around them (losses.nll_mse). init: start from these weights instead
+    MSE while sigma and rho follow the NLL around them (losses.nll_mse), "ade" likewise by the mean Euclidean error
+    (losses.nll_ade; the warm-up too: robust to the huge misses of real tracks). init: start from these weights instead
     of random ones (fine-tuning, e.g. sim-to-real): a run folder, or "shipped" for predictor/weights/<model>; its
-    model and model config must be this run's (`init_weights`). Writes out/model.pt (the best epoch's weights),
-    out/config.json, out/log.csv. Returns
+    model and model config must be this run's (`init_weights`). select: the validation criterion that picks the
+    checkpoint: "loss" (the epoch's own loss: MSE in the warm-up, then NLL), or "mse" / "ade" (the means' squared or
+    Euclidean error over every epoch, the starting weights included: a residual model starts as constant
+    velocity, so it ends no worse than constant velocity on the validation split). augment: mirror a random half
+    of every batch (predictor.augment). Writes out/model.pt (the best epoch's weights), out/config.json,
+    out/log.csv. Returns
     {"best_epoch", "best_val", "val_history", "epochs_run", "train_samples", "samples_per_s", ...}.
     """
     import torch
     from tqdm import tqdm
 
-    from predictor.losses import LOSSES, loss_for_epoch
+    from predictor.augment import mirror_batch
+    from predictor.losses import LOSSES, loss_for_epoch, loss_name
     from predictor.models import build_model
 
     if epochs < 1 or batch_size < 1 or not lr > 0 or warmup_epochs < 0 or (patience is not None and patience < 1):
         raise UserError(f"bad training settings: epochs {epochs}, batch size {batch_size}, lr {lr}, "
                         f"warm-up {warmup_epochs}, patience {patience}; expected positive numbers")
-    if mean_loss not in ("nll", "mse"):
-        raise UserError(f"unknown mean loss {mean_loss!r}; expected nll or mse")
+    if mean_loss not in ("nll", "mse", "ade"):
+        raise UserError(f"unknown mean loss {mean_loss!r}; expected nll, mse or ade")
+    if select not in SELECT:
+        raise UserError(f"unknown checkpoint criterion {select!r}; expected one of {', '.join(SELECT)}")
     if lr_schedule not in LR_SCHEDULES:
         raise UserError(f"unknown learning-rate schedule {lr_schedule!r}; expected one of {', '.join(LR_SCHEDULES)}")
     dev = resolve_device(device)
@@ -169,6 +180,8 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
     mcfg = {"history": store.H, "future": store.F, "max_neighbours": window.max_neighbours,
             "max_horizon": window.max_horizon, "neighbour_grid": window.neighbour_grid,
             "horizon_grid": window.horizon_grid, **(model_config or {})}
+    if mcfg.get("cv_lags") == "auto":  # the lag whose constant velocity fits the training windows best
+        mcfg["cv_lags"] = best_cv_lag(store, train_idx, min(AUTO_LAGS, store.H - 1)) if mcfg.get("residual") else 1
     net = build_model(model, mcfg)
     init_info = init_weights(net, model, init) if init is not None else None
     net = net.to(dev)
@@ -187,7 +200,7 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
               "train": {"epochs": epochs, "warmup_epochs": warmup_epochs, "batch_size": batch_size, "lr": lr,
                         "max_samples": max_samples, "train_samples": int(len(train_idx)),
                         "val_samples": int(len(val_idx)), "lr_schedule": lr_schedule, "patience": patience,
-                        "mean_loss": mean_loss},
+                        "mean_loss": mean_loss, "select": select, "augment": augment},
               "device": dev.type, "versions": versions()}
     if init_info is not None:
         config["train"]["init"] = init_info
@@ -202,10 +215,15 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
                      "lr"])
     best, best_epoch, stale = math.inf, -1, 0
     history = [{"epoch": 0, "loss": "init", "train": math.nan, **_epoch_eval(net, store, val_idx, batch_size, dev)}]
+    if select != "loss" and history[0][select] < best:  # the starting weights are a candidate too
+        best, best_epoch = history[0][select], 0
+        save_checkpoint(net, out / "model.pt")
+    grids = {"nbr": window.neighbour_grid, "hz": window.horizon_grid}
+    flips = np.random.default_rng(seed + 2)  # its own stream: the batch order is the same with or without
     samples_seen, train_time = 0, 0.0
     for epoch in range(epochs):
         kind = loss_for_epoch(epoch, warmup_epochs)
-        if epoch == warmup_epochs:
+        if epoch == warmup_epochs and select == "loss":
             best, stale = math.inf, 0  # the selection criterion switches from MSE to NLL here
         if lr_schedule == "plateau" and epoch in (0, warmup_epochs):  # a fresh plateau for each criterion
             sched = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, factor=0.5, patience=0)
@@ -215,11 +233,14 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
         bar = tqdm(range(0, len(order), batch_size), desc=f"epoch {epoch + 1}/{epochs} {kind}", unit="batch",
                    disable=not progress, leave=False)
         for i in bar:
-            b = _to(store.batch(order[i:i + batch_size]).tensors(), dev)
+            b = store.batch(order[i:i + batch_size]).tensors()
+            if augment:
+                b = mirror_batch(b, torch.from_numpy(flips.random(len(b["hist"])) < 0.5), grids)
+            b = _to(b, dev)
             if hasattr(net, "training_step"):  # a model with its own update (Social-GAN: discriminator, variety loss)
                 loss = net.training_step(b, kind, opt)
             else:
-                fn = LOSSES["nll+mse" if kind == "nll" and mean_loss == "mse" else kind]
+                fn = LOSSES[loss_name(kind, mean_loss)]
                 loss = fn(net(b), b["fut"], b["fut_valid"])
                 opt.zero_grad()
                 loss.backward()
@@ -234,7 +255,7 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
         samples_seen += len(order)
         train_time += secs
         val = _epoch_eval(net, store, val_idx, batch_size, dev)
-        crit = val[kind]
+        crit = val[kind if select == "loss" else select]
         if lr_schedule == "plateau":
             sched.step(crit)
         history.append({"epoch": epoch + 1, "loss": kind, "train": tot / max(nb, 1), **val})
@@ -261,6 +282,28 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
     return {"best_epoch": best_epoch, "best_val": best, "val_history": history, "epochs_run": len(history) - 1,
             "train_samples": int(len(train_idx)), "samples_per_s": samples_seen / max(train_time, 1e-9),
             "out": str(out), "config": config}
+
+
+def best_cv_lag(store: FeatureStore, idx: np.ndarray, max_lag: int, windows: int = 4000) -> int:
+    """The lag l in 1 .. max_lag whose constant-velocity extrapolation (the mean displacement over the last l
+    steps) has the lowest ADE on (a fixed subset of `windows` of) the windows idx: 1 on clean tracks, more on
+    jittery ones (detected boxes), where the last displacement is mostly noise. `cv_lags = auto` in `train`."""
+    import torch
+
+    from predictor.models.gaussian import cv_step, lag_steps
+
+    if max_lag < 2:
+        return 1
+    if len(idx) > windows:
+        idx = np.sort(np.random.default_rng(0).choice(idx, windows, replace=False))
+    b = store.batch(idx).tensors()
+    hist, fut, valid = b["hist"], b["fut"], b["fut_valid"].float()
+    steps = torch.cat([cv_step(hist)[:, None], lag_steps(hist, max_lag)], 1)  # (B, max_lag, 2)
+    k = torch.arange(1, fut.shape[1] + 1, dtype=fut.dtype)
+    pred = hist[:, -1, None, None, :2] + steps[:, :, None] * k[None, None, :, None]  # (B, L, F, 2)
+    err = torch.linalg.norm(pred - fut[:, None], dim=-1)
+    ade = (err * valid[:, None]).sum((0, 2)) / valid.sum().clamp_min(1)
+    return int(ade.argmin()) + 1
 
 
 def init_weights(net: Any, model: str, init: str | Path) -> dict[str, Any]:
@@ -301,14 +344,17 @@ def train_command(args: argparse.Namespace) -> int:
                 batch_size=args.batch_size, lr=args.lr, seed=args.seed, max_samples=args.max_samples,
                 max_val_samples=VAL_SAMPLES, test_scenes=getattr(args, "test_scenes", None),
                 window=protocol_window(getattr(args, "protocol", None)),
-                model_config={"residual": bool(getattr(args, "residual", True))},
+                model_config={"residual": bool(getattr(args, "residual", True)),
+                              "cv_lags": getattr(args, "cv_lags", "auto")},
                 lr_schedule=getattr(args, "lr_schedule", "cosine"), patience=getattr(args, "patience", None),
-                device=getattr(args, "device", "auto"), mean_loss=getattr(args, "mean_loss", "mse"),
-                init=getattr(args, "init", None))
+                device=getattr(args, "device", "auto"), mean_loss=getattr(args, "mean_loss", "ade"),
+                init=getattr(args, "init", None), select=getattr(args, "select", "ade"),
+                augment=getattr(args, "augment", True))
     if set(res["config"]["split"]["val"]) & set(res["config"]["split"]["train"]):
         print(f"note: one scene left to train on, so validation (checkpoint choice) used the training scene(s) "
               f"{', '.join(res['config']['split']['train'])}")
-    kind = "nll" if res["best_epoch"] > args.warmup_epochs else "mse"
+    select = res["config"]["train"]["select"]
+    kind = select if select != "loss" else "nll" if res["best_epoch"] > args.warmup_epochs else "mse"
     print(f"{args.model}: best epoch {res['best_epoch']} of {res['epochs_run']} (val {kind} {res['best_val']:.3f}), "
           f"{res['train_samples']} training windows, {res['samples_per_s']:.0f} samples/s -> {args.out}")
     return 0

@@ -18,6 +18,15 @@ MAX_SEED = 2**31 - 1  # simulators take 32-bit signed seeds
 MAX_SEEDS = 1_000_000  # per command: more is a typo, and would fill memory before anything ran
 
 
+def cv_lags(text: str) -> str | int:
+    """`--cv-lags`: "auto" or a whole number of steps from 1."""
+    if text == "auto":
+        return text
+    if not text.isdigit() or int(text) < 1:
+        raise argparse.ArgumentTypeError(f"expected auto or a whole number from 1, got {text!r}")
+    return int(text)
+
+
 def parse_seeds(text: str) -> list[int]:
     """"0-99" or "1,5,9" or "3" or mixes ("0-4,10") -> sorted unique ints in [0, 2^31-1], at most 1e6 of them.
 
@@ -137,16 +146,27 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--lr-schedule", choices=["cosine", "plateau", "constant"], default="cosine",
                    help="cosine decay after a linear warm-up (default), halve on a validation plateau, or constant")
     t.add_argument("--patience", type=int, default=3,
-                   help="stop after this many epochs without a better validation NLL (default 3; the best "
-                        "epoch's weights are kept)")
+                   help="stop after this many epochs (after the warm-up) without a better validation score (--select; "
+                        "default 3; the best epoch's weights are kept)")
     t.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"],
                    help="auto (default): CUDA when torch sees a GPU, else the CPU")
-    t.add_argument("--mean-loss", choices=["nll", "mse"], default="mse",
-                   help="after the MSE warm-up: mse (default) keeps the means on MSE while sigma and rho follow the "
-                        "Gaussian NLL; nll trains the means by the NLL too (the paper)")
+    t.add_argument("--mean-loss", choices=["nll", "mse", "ade"], default="ade",
+                   help="ade (default) fits the means by the mean Euclidean error, warm-up included (robust to the "
+                        "huge misses of real tracks) while sigma and rho follow the Gaussian NLL after the warm-up; mse "
+                        "likewise by the squared error; nll trains the means by the NLL too (the paper)")
     t.add_argument("--residual", action=argparse.BooleanOptionalAction, default=True,
                    help="predict a correction to constant-velocity extrapolation (default) or, with --no-residual, "
                         "the means directly as in the paper")
+    t.add_argument("--cv-lags", type=cv_lags, default="auto",
+                   help="residual form: extrapolate from the last displacement (1) plus a learned blend of the mean "
+                        "displacements over up to N steps (jittery tracks; not Social-GAN); auto (default): the lag "
+                        "whose constant velocity fits the training windows best, up to 5")
+    t.add_argument("--select", choices=["loss", "mse", "ade"], default="ade",
+                   help="the validation criterion that picks the checkpoint: ade (default) / mse, the means' Euclidean "
+                        "/ squared error over every epoch, the starting weights included (a residual model starts as "
+                        "constant velocity); or loss, the epoch's own loss (MSE in the warm-up, then NLL)")
+    t.add_argument("--augment", action=argparse.BooleanOptionalAction, default=True,
+                   help="mirror a random half of every batch left-right (default on; --no-augment)")
 
     e = cmd("evaluate", "simharness.evaluation:evaluate_command", "score a predictor open-loop on a data set")
     e.add_argument("--data", type=Path, required=True)

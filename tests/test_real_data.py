@@ -245,7 +245,7 @@ def test_train_init_fine_tunes_shipped_and_run_weights(datasets, tmp_path, capsy
     from predictor.predict import ModelPredictor
 
     traf, common = str(datasets["traf"]), ["--test-scenes", "TRAF12", "--epochs", "1", "--warmup-epochs", "1",
-                                            "--max-samples", "64", "--no-residual"]
+                                            "--max-samples", "64", "--select", "loss", "--no-residual"]
     tuned, scratch = tmp_path / "tuned", tmp_path / "scratch"
     assert main(["train", "--data", traf, *common, "--init", "shipped", "--out", str(tuned)]) == 0
     assert main(["train", "--data", traf, *common, "--out", str(scratch)]) == 0

@@ -15,6 +15,7 @@ from predictor.models.const_vel import ConstantVelocity
 from predictor.models.gaussian import cv_extrapolation
 from predictor.predict import ModelPredictor
 from predictor.train import train
+from simharness.errors import UserError
 
 ALL = ("traphic", "traphic-b", "rnn-ed", "social-lstm", "social-gan", "cs-lstm")
 
@@ -78,3 +79,59 @@ def test_old_checkpoints_load_in_the_papers_form(tmp_path) -> None:
           threads=1, progress=False, model_config={"residual": True}, cache_dir=tmp_path / "cache")
     run = ModelPredictor.from_run(tmp_path / "run")
     assert run.info["model_config"]["residual"] is True and run.model.cfg.residual is True
+
+
+def test_select_mse_keeps_the_starting_weights_when_training_only_hurts(tmp_path) -> None:
+    """`select="mse"`: the starting weights (constant velocity, for a residual model) are a candidate, so a run whose
+    every epoch is worse on validation keeps them; with augmentation on, training still runs and records it."""
+    data = write_flow_dataset(tmp_path / "data", scenes=5)
+    # A learning rate so large that every epoch ends worse than constant velocity on validation.
+    res = train(data, "rnn-ed", tmp_path / "hurt", epochs=2, warmup_epochs=1, batch_size=64, max_samples=256,
+                lr=5.0, progress=False, select="mse", augment=True, model_config={"residual": True})
+    assert res["best_epoch"] == 0 and res["best_val"] == res["val_history"][0]["mse"]
+    assert all(h["mse"] > res["best_val"] for h in res["val_history"][1:])
+    assert res["config"]["train"]["select"] == "mse" and res["config"]["train"]["augment"] is True
+    pred = ModelPredictor.from_run(tmp_path / "hurt")
+    scene = flow_scene(9, n=8, t=16)
+    cv = ConstantVelocity().predict(scene, np.arange(8), 25).mean
+    assert np.abs(pred.predict(scene, np.arange(8), 25).mean - cv).max() < 1e-3
+    # a sane learning rate moves away from the start where training helps
+    res = train(data, "rnn-ed", tmp_path / "ok", epochs=2, warmup_epochs=1, batch_size=64, max_samples=512,
+                progress=False, select="mse", model_config={"residual": True})
+    assert res["best_epoch"] >= 1 and res["best_val"] < res["val_history"][0]["mse"]
+
+
+def test_lag_blend_starts_as_the_model_it_wraps_and_learns_to_smooth_a_jittery_velocity(batch) -> None:
+    """cv_lags > 1: at initialisation exactly the residual model of cv_lags 1 (so constant velocity); on tracks whose
+    last displacement is jitter around a steady motion, fitting the blend alone brings the error down."""
+    from predictor.models.gaussian import LagBlend, lag_steps
+
+    cfg = {"history": 15, "future": 25, "residual": True}
+    torch.manual_seed(0)
+    plain = build_model("rnn-ed", {**cfg, "cv_lags": 1})
+    torch.manual_seed(0)
+    blend = build_model("rnn-ed", {**cfg, "cv_lags": 5})
+    assert isinstance(blend, LagBlend) and blend.name == "rnn-ed" and blend.cfg.cv_lags == 5
+    assert torch.equal(plain(batch), blend(batch))
+    # lag l: (now - l steps back) / l
+    hist = batch["hist"].clone()
+    d = lag_steps(hist, 5)
+    assert d.shape == (len(hist), 4, 2)
+    assert torch.allclose(d[:, 2], (hist[:, -1, :2] - hist[:, -5, :2]) / 4)
+    # steady 1 m per step along x with +-0.4 m of jitter on every other position
+    t = torch.arange(15, dtype=torch.float32)
+    xy = torch.stack([t + 0.4 * (t % 2) - 14, torch.zeros(15)], -1)
+    hist[:, :, :2] = xy
+    fut = torch.stack([torch.arange(1, 26, dtype=torch.float32) + xy[-1, 0], torch.zeros(25)], -1)
+    jb = {**batch, "hist": hist, "fut": fut.expand(len(hist), -1, -1).clone()}
+    before = float(mse(blend(jb), jb["fut"], jb["fut_valid"]).detach())
+    opt = torch.optim.Adam([blend.w], lr=1e-2)
+    for _ in range(100):
+        loss = mse(blend(jb), jb["fut"], jb["fut_valid"])
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    assert float(loss) < 0.2 * before and float(blend.w.abs().sum()) > 0
+    with pytest.raises(UserError, match="cv_lags"):
+        build_model("rnn-ed", {**cfg, "cv_lags": 15})
+    assert build_model("social-gan", {**cfg, "cv_lags": 5}).cfg.cv_lags == 1

@@ -26,7 +26,9 @@ MODELS: dict[str, tuple[str, str, dict[str, Any]]] = {
     # The paper's baselines (H7).
     "rnn-ed": ("predictor.models.rnn_ed:RNNED", "predictor.models.rnn_ed:RNNEDConfig", {}),
     "social-lstm": ("predictor.models.social_lstm:SocialLSTM", "predictor.models.social_lstm:SocialLSTMConfig", {}),
-    "social-gan": ("predictor.models.social_gan:SocialGAN", "predictor.models.social_gan:SocialGANConfig", {}),
+    # Social-GAN decodes step by step from its own samples: its residual form keeps the last displacement.
+    "social-gan": ("predictor.models.social_gan:SocialGAN", "predictor.models.social_gan:SocialGANConfig",
+                   {"cv_lags": 1}),
     "cs-lstm": ("predictor.models.cs_lstm:CSLSTM", "predictor.models.cs_lstm:CSLSTMConfig", {}),
 }
 
@@ -52,6 +54,13 @@ def build_model(name: str, config: dict[str, Any] | None = None) -> Any:
         raise UserError(f"model {name!r}: unknown config keys {sorted(unknown)}")
     given.update(MODELS[name][2])
     given = {k: tuple(v) if isinstance(v, list) else v for k, v in given.items()}
-    model = _load(MODELS[name][0])(cls_cfg(**given))
+    cfg = cls_cfg(**given)
+    if not 1 <= cfg.cv_lags < cfg.history:
+        raise UserError(f"model {name!r}: cv_lags {cfg.cv_lags} must be from 1 to history - 1 ({cfg.history - 1})")
+    model = _load(MODELS[name][0])(cfg)
+    if cfg.residual and cfg.cv_lags > 1:
+        from predictor.models.gaussian import LagBlend
+
+        model = LagBlend(model)
     model.name = name
     return model

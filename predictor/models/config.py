@@ -16,6 +16,10 @@ class ModelConfig:
     residual: the means are constant-velocity extrapolation plus a learned correction (zero at initialisation,
         `residual_scale` metres per unit at the last step, ramped from zero along the horizon: models.gaussian),
         not the paper's direct form; False in configs written before the option existed.
+    cv_lags: residual form only: the constant velocity it starts from is the last displacement (1) or, above 1,
+        that plus a learned blend of the mean displacements over the last 2 .. cv_lags steps (zero at
+        initialisation, so still exactly constant velocity; models.gaussian.LagBlend): noisy real tracks
+        extrapolate better from a velocity smoothed over several steps.
     """
 
     history: int = 15
@@ -30,6 +34,7 @@ class ModelConfig:
     horizon_grid: tuple[int, int] = (7, 5)
     residual: bool = False
     residual_scale: float = 5.0
+    cv_lags: int = 1
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)

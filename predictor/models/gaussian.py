@@ -40,6 +40,35 @@ def cv_step(hist: torch.Tensor) -> torch.Tensor:
     return torch.where((prev >= 0)[:, None], step, torch.zeros_like(step))
 
 
+def lag_steps(hist: torch.Tensor, lags: int) -> torch.Tensor:
+    """Mean displacement per window step over the last 2 .. lags steps (B, lags - 1, 2), metres, target frame:
+    (now - the position l steps back) / l; `cv_step` where the target was absent l steps back."""
+    xy, present = hist[..., _XY], hist[..., _PRESENT] > 0.5
+    ls = torch.arange(2, lags + 1, device=hist.device)
+    back = xy[:, -1 - ls]  # (B, L - 1, 2)
+    d = (xy[:, -1, None] - back) / ls[None, :, None].to(hist.dtype)
+    return torch.where(present[:, -1 - ls, None], d, cv_step(hist)[:, None])
+
+
+class LagBlend(nn.Module):
+    """A residual model whose constant velocity is the last displacement plus a learned blend of longer lags:
+    means + k * sum_l w_l (lag_steps_l - cv_step) at future step k. w starts at zero (exactly the model it wraps)
+    and is learned with the rest; `cfg`, `name` and the Gaussian of the wrapped model are kept."""
+
+    RATE = 10.0  # w is stored divided by this, so Adam's steps move it as fast as the network's outputs
+
+    def __init__(self, net: nn.Module) -> None:
+        super().__init__()
+        self.net, self.cfg = net, net.cfg
+        self.w = nn.Parameter(torch.zeros(net.cfg.cv_lags - 1))
+
+    def forward(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+        out, hist = self.net(batch), batch["hist"]
+        delta = ((lag_steps(hist, self.cfg.cv_lags) - cv_step(hist)[:, None]) * (self.w * self.RATE)[:, None]).sum(1)
+        k = torch.arange(1, out.shape[1] + 1, device=out.device, dtype=out.dtype)
+        return torch.cat([out[..., :2] + k[None, :, None] * delta[:, None], out[..., 2:]], -1)
+
+
 def cv_extrapolation(hist: torch.Tensor, future: int) -> torch.Tensor:
     """Constant-velocity means (B, F, 2), metres, target frame: now + k * cv_step for k = 1 .. F."""
     k = torch.arange(1, future + 1, device=hist.device, dtype=hist.dtype)
