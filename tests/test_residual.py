@@ -131,7 +131,7 @@ def test_lag_blend_starts_as_the_model_it_wraps_and_learns_to_smooth_a_jittery_v
         opt.zero_grad()
         loss.backward()
         opt.step()
-    assert float(loss) < 0.2 * before and float(blend.w.abs().sum()) > 0
+    assert float(loss.detach()) < 0.2 * before and float(blend.w.detach().abs().sum()) > 0
     with pytest.raises(UserError, match="cv_lags"):
         build_model("rnn-ed", {**cfg, "cv_lags": 15})
     assert build_model("social-gan", {**cfg, "cv_lags": 5}).cfg.cv_lags == 1
