@@ -152,8 +152,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="auto (default): CUDA when torch sees a GPU, else the CPU")
     t.add_argument("--mean-loss", choices=["nll", "mse", "ade"], default="ade",
                    help="ade (default) fits the means by the mean Euclidean error, warm-up included (robust to the "
-                        "huge misses of real tracks) while sigma and rho follow the Gaussian NLL after the warm-up; mse "
-                        "likewise by the squared error; nll trains the means by the NLL too (the paper)")
+                        "huge misses of real tracks) while sigma and rho follow the Gaussian NLL after the warm-up; "
+                        "mse likewise by the squared error; nll trains the means by the NLL too (the paper)")
     t.add_argument("--residual", action=argparse.BooleanOptionalAction, default=True,
                    help="predict a correction to constant-velocity extrapolation (default) or, with --no-residual, "
                         "the means directly as in the paper")
