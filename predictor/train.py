@@ -180,7 +180,12 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
     mcfg = {"history": store.H, "future": store.F, "max_neighbours": window.max_neighbours,
             "max_horizon": window.max_horizon, "neighbour_grid": window.neighbour_grid,
             "horizon_grid": window.horizon_grid, **(model_config or {})}
-    if mcfg.get("cv_lags") == "auto":  # the lag whose constant velocity fits the training windows best
+    if mcfg.get("cv_lags") == "auto" and init is not None:  # fine-tuning continues the network it starts from
+        try:
+            mcfg["cv_lags"] = json.loads(init_files(model, init)[1].read_text())["model_config"].get("cv_lags", 1)
+        except (OSError, ValueError, KeyError, TypeError, AttributeError):
+            mcfg["cv_lags"] = 1  # a damaged config: init_weights below says what is wrong with it
+    elif mcfg.get("cv_lags") == "auto":  # the lag whose constant velocity fits the training windows best
         mcfg["cv_lags"] = best_cv_lag(store, train_idx, min(AUTO_LAGS, store.H - 1)) if mcfg.get("residual") else 1
     net = build_model(model, mcfg)
     init_info = init_weights(net, model, init) if init is not None else None
@@ -306,22 +311,29 @@ def best_cv_lag(store: FeatureStore, idx: np.ndarray, max_lag: int, windows: int
     return int(ade.argmin()) + 1
 
 
-def init_weights(net: Any, model: str, init: str | Path) -> dict[str, Any]:
-    """Load `init` (a run folder, or "shipped": predictor/weights/<model>) into `net` -> provenance for config.json.
-
-    UserError (one line) when the checkpoint is of another model or another model config (layer widths, frames,
-    residual form...): fine-tuning continues the same network, it does not adapt one."""
-    from predictor.checkpoint import load_checkpoint
+def init_files(model: str, init: str | Path) -> tuple[Path, Path]:
+    """(weights, config.json) of `--init`: a run folder, or "shipped" (predictor/weights/<model>); UserError if
+    absent."""
     from predictor.predict import WEIGHTS
 
     if str(init) == "shipped":
         weights, cfg_path = WEIGHTS / f"{model}.pt", WEIGHTS / f"{model}.json"
         if not weights.is_file():
             raise UserError(f"--init shipped: no shipped weights for {model!r} in {WEIGHTS}")
-    else:
-        weights, cfg_path = Path(init) / "model.pt", Path(init) / "config.json"
-        if not Path(init).is_dir():
-            raise UserError(f"--init {init}: not a run folder (expected model.pt and config.json), nor 'shipped'")
+        return weights, cfg_path
+    if not Path(init).is_dir():
+        raise UserError(f"--init {init}: not a run folder (expected model.pt and config.json), nor 'shipped'")
+    return Path(init) / "model.pt", Path(init) / "config.json"
+
+
+def init_weights(net: Any, model: str, init: str | Path) -> dict[str, Any]:
+    """Load `init` (a run folder, or "shipped": predictor/weights/<model>) into `net` -> provenance for config.json.
+
+    UserError (one line) when the checkpoint is of another model or another model config (layer widths, frames,
+    residual form...): fine-tuning continues the same network, it does not adapt one."""
+    from predictor.checkpoint import load_checkpoint
+
+    weights, cfg_path = init_files(model, init)
     src, cfg = load_checkpoint(weights, cfg_path)
     mine, theirs = net.cfg.to_dict(), src.cfg.to_dict()
     diff = [f"{k} {theirs.get(k)} vs {mine.get(k)}" for k in sorted(set(mine) | set(theirs))

@@ -3,6 +3,8 @@ trains, and checkpoints written before the option load in the paper's form."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 import torch
@@ -135,3 +137,18 @@ def test_lag_blend_starts_as_the_model_it_wraps_and_learns_to_smooth_a_jittery_v
     with pytest.raises(UserError, match="cv_lags"):
         build_model("rnn-ed", {**cfg, "cv_lags": 15})
     assert build_model("social-gan", {**cfg, "cv_lags": 5}).cfg.cv_lags == 1
+
+
+def test_cv_lags_auto_follows_the_run_it_fine_tunes(tmp_path) -> None:
+    """--cv-lags auto picks a lag from the training windows, except when fine-tuning (--init), where the network
+    it continues fixes it."""
+    from simharness.cli import main
+
+    data = str(write_flow_dataset(tmp_path / "data", scenes=5))
+    common = ["--data", data, "--model", "rnn-ed", "--epochs", "1", "--warmup-epochs", "1", "--max-samples", "64"]
+    assert main(["train", *common, "--cv-lags", "3", "--out", str(tmp_path / "a")]) == 0
+    assert main(["train", *common, "--init", str(tmp_path / "a"), "--out", str(tmp_path / "b")]) == 0
+    cfg = json.loads((tmp_path / "b" / "config.json").read_text())
+    assert cfg["model_config"]["cv_lags"] == 3 and cfg["train"]["init"]["from"] == str(tmp_path / "a")
+    assert main(["train", *common, "--out", str(tmp_path / "c")]) == 0  # smooth synthetic tracks: the last step
+    assert json.loads((tmp_path / "c" / "config.json").read_text())["model_config"]["cv_lags"] == 1
