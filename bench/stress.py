@@ -13,6 +13,8 @@ Each (scenario, predictor) result is kept under --out and reused on a rerun (del
 
     .venv/bin/python bench/stress.py --seeds 0-49 --predictors oracle,static,const-vel,traphic
     .venv/bin/python bench/stress.py --seeds 0-19 --predictors cs-lstm,none --open-loop-seeds 0-9
+    .venv/bin/python bench/stress.py --out runs/o2 --scenarios brake --predictors oracle --seeds 10-29  # a chunk
+    .venv/bin/python bench/stress.py --out runs/all --merge runs/o1,runs/o2 --scenarios brake --predictors oracle
     .venv/bin/python bench/stress.py --sensitivity step_out --predictors oracle --perturb noise=0,1,2,4 --seeds 0-19
 """
 
@@ -82,6 +84,32 @@ def closed_loop(scenario: str, predictor: str, seeds: list[int], workers: int, o
            "wall_s": round(time.perf_counter() - t0, 1), "mean_episode_wall_s": sum(e["wall_s"] for e in episodes)
            / max(len(episodes), 1), **keep,
            "per_episode": [{k: v for k, v in e.items() if not isinstance(v, dict)} for e in episodes]}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(row, indent=1, default=float) + "\n")
+    return row
+
+
+PER_EPISODE = {"at_fault_collision_rate": "at_fault_collided", "collision_rate": "collided", "composite": "composite",
+               "near_misses_per_min": "near_misses_per_min", "progress_m": "progress_m", "online_ade": "online_ade"}
+
+
+def merge_runs(scenario: str, predictor: str, outs: list[Path], out: Path) -> dict | None:
+    """Pool the cached episodes of one (scenario, predictor) from several --out folders (e.g. seed chunks run
+    one after another) into out/closedloop/, with the bootstrap CIs recomputed over all of them."""
+    from simharness.closedloop import bootstrap_ci
+
+    parts = [json.loads(p.read_text()) for o in outs
+             if (p := o / "closedloop" / scenario / f"{predictor}.json").is_file()]
+    if not parts:
+        return None
+    parts.sort(key=lambda r: r["seeds"][0])
+    eps = [e for r in parts for e in r["per_episode"]]
+    present = [e for e in eps if e.get("ego_present", True)]
+    row = {"scenario": scenario, "predictor": predictor, "seeds": [s for r in parts for s in r["seeds"]],
+           "episodes": len(eps), "wall_s": sum(r["wall_s"] for r in parts),
+           "mean_episode_wall_s": sum(e["wall_s"] for e in eps) / max(len(eps), 1),
+           **{k: bootstrap_ci([e.get(v) for e in present]) for k, v in PER_EPISODE.items()}, "per_episode": eps}
+    path = out / "closedloop" / scenario / f"{predictor}.json"
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(row, indent=1, default=float) + "\n")
     return row
@@ -194,6 +222,8 @@ def main() -> int:
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--out", type=Path, default=Path("runs/bench_stress"))
     p.add_argument("--report", action="store_true", help="only tabulate what is cached under --out (any seeds)")
+    p.add_argument("--merge", default=None, help="first pool the cached episodes of these --out folders (a,b; "
+                   "e.g. seed chunks of a slow predictor) into --out, then tabulate as --report")
     p.add_argument("--sensitivity", default=None, help="instead: the sensitivity grid on these scenarios (a,b)")
     p.add_argument("--perturb", action="append", default=[], help="as `simharness sensitivity --perturb`")
     a = p.parse_args()
@@ -205,6 +235,11 @@ def main() -> int:
     scenarios = [s.strip() for s in a.scenarios.split(",") if s.strip()]
     predictors = [s.strip() for s in a.predictors.split(",") if s.strip()]
     table: dict[str, dict[str, dict]] = {}
+    if a.merge:
+        for sc in scenarios:
+            for name in predictors:
+                merge_runs(sc, name, [Path(o.strip()) for o in a.merge.split(",")], a.out)
+        a.report = True
     for sc in scenarios:
         rows = {name: closed_loop(sc, name, a.seeds, a.workers, a.out, a.report) for name in predictors}
         table[sc] = {k: v for k, v in rows.items() if v is not None}

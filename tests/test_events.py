@@ -147,3 +147,20 @@ def test_scripted_actors_follow_time_alone_so_a_branch_is_exact():
     for fa, fb in zip(a, b, strict=True):
         assert list(fa.agent_id) == list(fb.agent_id)
         np.testing.assert_array_equal(fa.xy, fb.xy)
+
+
+def test_pull_out_of_a_two_wheeler_starts_at_the_kerb_and_swerves_onto_the_ego_line():
+    spec = _spec({"kind": "pull_out", "actor": "motorcycle", "at": 1.0, "ahead": 0.0, "ahead_time": 0.5,
+                  "side": -1.0, "speed": 4.0, "delay": 0.2, "accel": 2.0, "end_speed": 7.0,
+                  "lateral_speed": 3.2})
+    _, frames = _run(spec)
+    moto = _new_actor(frames, AgentType.MOTORCYCLE)
+    m, e = _track(frames, moto), _track(frames, "ego")
+    k = int(np.flatnonzero(np.isfinite(m[:, 0]))[0])
+    # Against the right kerb by its own width (not a bus's), ahead of the ego, at 4 m/s.
+    assert m[k, 1] == pytest.approx(-(5.25 - 0.4 - 0.1), abs=0.35)
+    assert m[k, 0] > e[k, 0] and m[k, 2] == pytest.approx(4.0, abs=0.5)
+    vy = np.diff(m[k:, 1]) / spec.dt
+    assert vy.max() == pytest.approx(3.2, abs=0.05)  # sideways at lateral_speed (under 0.8 x its speed)
+    assert np.all(vy <= 0.8 * m[k:-1, 2] + 0.05)
+    assert m[-1, 1] == pytest.approx(e[k + 1, 1], abs=1.0) and m[-1, 2] == pytest.approx(7.0, abs=1e-3)

@@ -10,7 +10,8 @@ predictors that extrapolate the past do not.
 
 Placement (ego front x_f, centre line y_e, speed v_e at `at`): the actor's rear at
 x_f + ahead + ahead_time * v_e, its centre at y_e + side (kept on the carriageway); step_out and
-pull_out put the bus against the kerb on the side of `side` (right when 0); step_out puts its
+pull_out put the bus (pull_out: its actor, a bus unless `actor` names another, by its own width)
+against the kerb on the side of `side` (right when 0); step_out puts its
 pedestrian there on the kerb line, the stopped bus just behind it (between it and the ego: the
 pedestrian goes at least a bus length + 1 m ahead), and the pedestrian then crosses the whole carriageway.
 """
@@ -99,8 +100,10 @@ class EventScript:
             bus = AgentType.BUS
             bl, bw = float(PARAMS["length"][bus]), float(PARAMS["width"][bus])
             bus_y = kerb * (hw - 0.5 * bw - KERB_GAP)
-            if kind == "pull_out":
-                placed.append((actor_type, front + 0.5 * bl, bus_y, speed if sp["speed"] >= 0 else 0.0))
+            if kind == "pull_out":  # the actor (a bus unless `actor` says otherwise) against the kerb
+                al, aw = float(PARAMS["length"][actor_type]), float(PARAMS["width"][actor_type])
+                placed.append((actor_type, front + 0.5 * al, kerb * (hw - 0.5 * aw - KERB_GAP),
+                               speed if sp["speed"] >= 0 else 0.0))
             else:
                 pl, pw = float(PARAMS["length"][actor_type]), float(PARAMS["width"][actor_type])
                 front = max(front, s.x[e] + 0.5 * s.length[e] + bl + 1.0)  # the bus must fit in front of the ego
