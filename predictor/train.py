@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from predictor.checkpoint import atomic_write_text, save_checkpoint, versions
+from predictor.checkpoint import atomic_write_text, read_config, save_checkpoint, versions
 from predictor.features import FeatureStore, WindowConfig
 from predictor.split import split_scenes
 from simharness.errors import UserError
@@ -181,10 +181,8 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
             "max_horizon": window.max_horizon, "neighbour_grid": window.neighbour_grid,
             "horizon_grid": window.horizon_grid, **(model_config or {})}
     if mcfg.get("cv_lags") == "auto" and init is not None:  # fine-tuning continues the network it starts from
-        try:
-            mcfg["cv_lags"] = json.loads(init_files(model, init)[1].read_text())["model_config"].get("cv_lags", 1)
-        except (OSError, ValueError, KeyError, TypeError, AttributeError):
-            mcfg["cv_lags"] = 1  # a damaged config: init_weights below says what is wrong with it
+        theirs = read_config(init_files(model, init)[1])["model_config"]
+        mcfg["cv_lags"] = theirs.get("cv_lags", 1) if isinstance(theirs, dict) else 1
     elif mcfg.get("cv_lags") == "auto":  # the lag whose constant velocity fits the training windows best
         mcfg["cv_lags"] = best_cv_lag(store, train_idx, min(AUTO_LAGS, store.H - 1)) if mcfg.get("residual") else 1
     net = build_model(model, mcfg)
