@@ -83,16 +83,15 @@ def _release_simulators() -> bool:
     return not live
 
 
-def _worker(fn: Callable[[Any], Any], conn: Connection, retry_on: tuple[type[BaseException], ...] = RETRY_ON,
-            jobs: int | None = None) -> None:
-    """Body of a worker process: run the jobs it is sent (None: stop) until `jobs` have run; for each send
-    ("ok", value, reusable) or ("error", line, traceback, retryable). It stops after a failed job, and after a
-    job that left a simulation open (`reusable` False)."""
+def _worker(fn: Callable[[Any], Any], conn: Connection, retry_on: tuple[type[BaseException], ...] = RETRY_ON) -> None:
+    """Body of a worker process: run the jobs it is sent until it is sent None or the parent closes the pipe (it
+    retires a worker by closing it); for each send ("ok", value, reusable) or ("error", line, traceback,
+    retryable). It stops after a failed job, and after a job that left a simulation open (`reusable` False)."""
     try:
-        while jobs is None or jobs > 0:
+        while True:
             try:
                 job = conn.recv()
-            except EOFError:  # the parent is gone
+            except EOFError:  # the parent is gone, or retired this worker
                 return
             if job is None:
                 return
@@ -105,7 +104,6 @@ def _worker(fn: Callable[[Any], Any], conn: Connection, retry_on: tuple[type[Bas
             conn.send(("ok", value, reusable))
             if not reusable:
                 return
-            jobs = None if jobs is None else jobs - 1
     finally:
         conn.close()
 
@@ -138,7 +136,7 @@ class LocalExecutor:
 
     def _start(self, fn: Callable[[Any], Any]) -> _Worker:
         parent, child = self._ctx.Pipe()
-        proc = self._ctx.Process(target=_worker, args=(fn, child, self.retry_on, self.jobs_per_worker), daemon=True)
+        proc = self._ctx.Process(target=_worker, args=(fn, child, self.retry_on), daemon=True)
         proc.start()
         child.close()  # the worker holds the only other end: EOF here means it died
         return _Worker(proc, parent, self.jobs_per_worker)
