@@ -46,7 +46,8 @@ def _clean(hist: Scene) -> tuple[Forecast, np.ndarray]:
 
 
 def _perturb(f: Forecast, hist: Scene, targets: np.ndarray, p: Perturbation, rng: np.random.Generator) -> Forecast:
-    return perturb(f, hist.xy[targets, -1], hist.agent_type[targets], p, rng)
+    return perturb(f, hist.xy[targets, -1], hist.agent_type[targets], p,
+                   unit_noise=rng.standard_normal((len(f.agent_id), 2)))
 
 
 def test_identity_changes_nothing():

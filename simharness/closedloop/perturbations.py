@@ -116,11 +116,11 @@ def _mix(x: np.ndarray) -> np.ndarray:
 
 
 def perturb(forecast: Forecast, now_xy: np.ndarray, agent_type: np.ndarray, p: Perturbation,
-            rng: np.random.Generator | None = None, unit_noise: np.ndarray | None = None) -> Forecast:
+            unit_noise: np.ndarray | None = None) -> Forecast:
     """One forecast degraded by `p` (all but latency, which needs the past: see `PerturbedPredictor`).
 
     forecast: M agents x F steps; now_xy (M, 2) m: each agent's position now; agent_type (M,) codes;
-    the noise drawn from `rng`, or given as (M, 2) standard normal draws (`unit_noise`).
+    unit_noise (M, 2): standard normal draws that `p.noise` scales (`unit_normals`; needed when p.noise).
     Returns a new Forecast (M' <= M agents).
     """
     mean = forecast.mean.astype(np.float64)  # (M, F, 2)
@@ -133,8 +133,7 @@ def perturb(forecast: Forecast, now_xy: np.ndarray, agent_type: np.ndarray, p: P
     m, f = mean.shape[:2]
     if p.noise:
         grow = (np.arange(f) + 1.0) / f  # (F,): 0 now .. 1 at the last step
-        err = p.noise * unit_noise[:, None] if unit_noise is not None else rng.normal(0.0, p.noise, (m, 1, 2))
-        mean = mean + err * grow[None, :, None]
+        mean = mean + p.noise * unit_noise[:, None] * grow[None, :, None]
     sigma_rho = forecast.sigma_rho
     if sigma_rho is not None and p.sigma != 1.0:
         sigma_rho = np.concatenate([sigma_rho[..., :2] * p.sigma, sigma_rho[..., 2:]], -1)
