@@ -13,6 +13,7 @@ Each (scenario, predictor) result is kept under --out and reused on a rerun (del
 
     .venv/bin/python bench/stress.py --seeds 0-49 --predictors oracle,static,const-vel,traphic
     .venv/bin/python bench/stress.py --seeds 0-19 --predictors cs-lstm,none --open-loop-seeds 0-9
+    .venv/bin/python bench/stress.py --seeds 0-9 --predictors traphic-b=runs/traphic-b  # a run folder, labelled
     .venv/bin/python bench/stress.py --out runs/o2 --scenarios brake --predictors oracle --seeds 10-29  # a chunk
     .venv/bin/python bench/stress.py --out runs/all --merge runs/o1,runs/o2 --scenarios brake --predictors oracle
     .venv/bin/python bench/stress.py --sensitivity step_out --predictors oracle --perturb noise=0,1,2,4 --seeds 0-19
@@ -58,12 +59,19 @@ def run_jobs(jobs: list[EpisodeJob], workers: int, desc: str) -> list[dict]:
         return list(tqdm(pool.map(scores_of, jobs), total=len(jobs), desc=desc, file=sys.stderr))
 
 
+def named(arg: str) -> dict[str, str]:
+    """--predictors "a,b,LABEL=RUN" -> {label: predictor}: a run folder gets a label for the tables and cache."""
+    pairs = [s.strip().split("=", 1) if "=" in s else [s.strip(), s.strip()] for s in arg.split(",") if s.strip()]
+    return {k: v for k, v in pairs}
+
+
 def closed_loop(scenario: str, predictor: str, seeds: list[int], workers: int, out: Path,
-                cached_only: bool = False) -> dict | None:
-    """Aggregate scores of one predictor on one stress scenario (cached in out/closedloop/).
+                cached_only: bool = False, label: str | None = None) -> dict | None:
+    """Aggregate scores of one predictor on one stress scenario (cached in out/closedloop/ under label).
 
     cached_only: whatever is cached, on whichever seeds (None when nothing is)."""
-    path = out / "closedloop" / scenario / f"{predictor}.json"
+    label = label or predictor
+    path = out / "closedloop" / scenario / f"{label}.json"
     if path.is_file():
         cached = json.loads(path.read_text())
         if "composite" not in cached and any("composite" in e for e in cached["per_episode"]):
@@ -80,7 +88,7 @@ def closed_loop(scenario: str, predictor: str, seeds: list[int], workers: int, o
                         f"{scenario} {predictor}")
     agg = aggregate(episodes)
     keep = {k: agg[k] for k in FIGURES if k in agg}
-    row = {"scenario": scenario, "predictor": predictor, "seeds": seeds, "episodes": len(episodes),
+    row = {"scenario": scenario, "predictor": label, "seeds": seeds, "episodes": len(episodes),
            "wall_s": round(time.perf_counter() - t0, 1), "mean_episode_wall_s": sum(e["wall_s"] for e in episodes)
            / max(len(episodes), 1), **keep,
            "per_episode": [{k: v for k, v in e.items() if not isinstance(v, dict)} for e in episodes]}
@@ -115,7 +123,8 @@ def merge_runs(scenario: str, predictor: str, outs: list[Path], out: Path) -> di
     return row
 
 
-def open_loop(scenario: str, predictors: list[str], seeds: list[int], workers: int, out: Path) -> dict[str, dict]:
+def open_loop(scenario: str, predictors: dict[str, str], seeds: list[int], workers: int,
+              out: Path) -> dict[str, dict]:
     """Open-loop ADE/FDE of each forecasting predictor on data generated from the scenario (cached)."""
     from simharness.evaluation import evaluate
     from simharness.generation import generate
@@ -124,10 +133,10 @@ def open_loop(scenario: str, predictors: list[str], seeds: list[int], workers: i
     data = out / "data" / scenario
     generate(load_scenario(f"stress/{scenario}"), seeds, data, workers=workers, progress=False)
     res = {}
-    for name in predictors:
+    for name, spec in predictors.items():
         path = out / "openloop" / scenario / f"{name}.json"
         if not path.is_file():
-            m = evaluate(data, load_predictor(name), split="all", progress=False, name=name)
+            m = evaluate(data, load_predictor(spec), split="all", progress=False, name=name)
             path.parent.mkdir(parents=True, exist_ok=True)
             path.write_text(json.dumps({k: m[k] for k in ("ade", "fde", "ade_rmse", "fde_rmse", "samples")},
                                        default=float) + "\n")
@@ -179,7 +188,6 @@ def markdown(table: dict[str, dict[str, dict]], openloop: dict[str, dict[str, di
                   f"{'score' if score else 'at-fault rate'} | closed-loop rank |", "|---|---|---|---|---|---|"]
         for sc, ol in openloop.items():
             names = [n for n in ol if n in table[sc]]
-            ol_rank = {n: i + 1 for i, n in enumerate(sorted(names, key=lambda n: ol[n]["ade"]))}
             sign = -1 if score else 1
             names = [n for n in names if key in table[sc][n]]
             cl_rank = {n: i + 1 for i, n in enumerate(sorted(names, key=lambda n: sign * table[sc][n][key]["mean"]))}
@@ -215,10 +223,11 @@ def sensitivity_run(scenario: str, predictor: str, perturb: list[str], seeds: li
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--scenarios", default=",".join(STRESS), help="stress scenario names (default: all)")
-    p.add_argument("--predictors", default="oracle,static,const-vel,traphic")
+    p.add_argument("--predictors", default="oracle,static,const-vel,traphic",
+                   help="names, or LABEL=RUN for a `simharness train` run folder")
     p.add_argument("--seeds", type=parse_seeds, default=parse_seeds("0-49"))
     p.add_argument("--open-loop-seeds", type=parse_seeds, default=None, help="also score open loop on these seeds")
-    p.add_argument("--open-loop-predictors", default="traphic,cs-lstm,const-vel")
+    p.add_argument("--open-loop-predictors", default="traphic,cs-lstm,const-vel", help="as --predictors")
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--out", type=Path, default=Path("runs/bench_stress"))
     p.add_argument("--report", action="store_true", help="only tabulate what is cached under --out (any seeds)")
@@ -233,7 +242,7 @@ def main() -> int:
                             a.workers, a.out)
         return 0
     scenarios = [s.strip() for s in a.scenarios.split(",") if s.strip()]
-    predictors = [s.strip() for s in a.predictors.split(",") if s.strip()]
+    predictors = named(a.predictors)
     table: dict[str, dict[str, dict]] = {}
     if a.merge:
         for sc in scenarios:
@@ -241,7 +250,8 @@ def main() -> int:
                 merge_runs(sc, name, [Path(o.strip()) for o in a.merge.split(",")], a.out)
         a.report = True
     for sc in scenarios:
-        rows = {name: closed_loop(sc, name, a.seeds, a.workers, a.out, a.report) for name in predictors}
+        rows = {name: closed_loop(sc, spec, a.seeds, a.workers, a.out, a.report, name)
+                for name, spec in predictors.items()}
         table[sc] = {k: v for k, v in rows.items() if v is not None}
     print(f"Closed loop, seeds {a.seeds[0]}-{a.seeds[-1]} ({len(a.seeds)}): mean [95% bootstrap CI]")
     print(f"{'scenario':10} {'predictor':10} {'at-fault rate':>20} {'collision rate':>20} {'composite':>20} "
@@ -254,7 +264,7 @@ def main() -> int:
         print(f"{sc:10} discriminating: {discriminates(rows)}")
     openloop: dict[str, dict[str, dict]] = {}
     if a.open_loop_seeds:
-        names = [s.strip() for s in a.open_loop_predictors.split(",") if s.strip()]
+        names = named(a.open_loop_predictors)
         print(f"Open loop (generated seeds {a.open_loop_seeds[0]}-{a.open_loop_seeds[-1]}, split all): ADE / FDE (m)")
         for sc in scenarios:
             openloop[sc] = open_loop(sc, names, a.open_loop_seeds, a.workers, a.out)
