@@ -204,68 +204,6 @@ def test_unsupported_layout_is_a_user_error():
         make_simulator(short(**{"road.layout": "intersection"}))
 
 
-def test_packed_leader_search_matches_the_search_over_everyone():
-    """band_gaps with a horizon and a subset of offsets gives, where it looks, the gaps and leader speeds of the
-    plain search over all agents (ties to the lowest row), and the same offset scores everywhere it looks."""
-    from simharness.sim import highway_dynamics as dyn
-
-    rng = np.random.default_rng(3)
-    for _ in range(50):
-        n, r, c = 40, 7, 12
-        gap_rows = np.round(rng.uniform(-3, 150, (r, n)), 1)  # rounded: equal gaps occur, ties must go alike
-        cand = rng.uniform(-5, 5, (r, c))
-        hy = rng.uniform(0.3, 1.3, r)
-        lo = rng.uniform(-5, 4, n)
-        hi = lo + rng.uniform(0.4, 3, n)
-        ahead = rng.random((r, n)) < 0.6
-        vx = rng.uniform(0, 15, n)
-        want = rng.random((r, c)) < 0.5
-        # Reference: every agent, every offset.
-        ov = (lo[None, None] < (cand + hy[:, None] + 0.15)[..., None]) & \
-             (hi[None, None] > (cand - hy[:, None] - 0.15)[..., None]) & ahead[:, None]
-        g = np.where(ov, np.maximum(gap_rows, 0)[:, None], np.inf)
-        j = np.argmin(g, axis=2)
-        ref_gap = np.take_along_axis(g, j[..., None], 2)[..., 0]
-        ref_v = np.where(np.isfinite(ref_gap), vx[j], np.inf)
-        gap, v_lead = dyn.band_gaps(gap_rows, cand, hy, lo, hi, ahead, vx, 0.15, horizon=dyn.LOOKAHEAD, want=want)
-        near = want & (ref_gap <= dyn.LOOKAHEAD)
-        assert np.array_equal(gap[near], ref_gap[near]) and np.array_equal(v_lead[near], ref_v[near])
-        assert np.all(np.isinf(gap[~want])) and np.all(gap[want & ~near] > dyn.LOOKAHEAD)
-        args = (vx[:r], vx[:r] + 2, np.full(r, 1.5), np.full(r, 1.2), np.full(r, 3.0), cand, cand[:, 0],
-                np.zeros(r), 5.25)
-        scores, ref_scores = dyn.offset_scores(gap, v_lead, *args), dyn.offset_scores(ref_gap, ref_v, *args)
-        assert np.array_equal(scores[want], ref_scores[want])
-
-
-def test_masked_argmin_ties_and_empty_rows():
-    from simharness.sim.highway_dynamics import masked_argmin
-
-    values = np.array([[3.0, 1.0, 1.0, 0.5], [2.0, 2.0, 5.0, 1.0], [1.0, 1.0, 1.0, 1.0]])
-    mask = np.array([[True, True, True, False], [False, True, True, False], [False, False, False, False]])
-    j, best = masked_argmin(values, mask)
-    assert j.tolist() == [1, 1, 0] and best.tolist() == [1.0, 2.0, np.inf]
-
-
-def test_side_windows_match_the_per_pair_margin():
-    """side_windows (one follower table and its transpose) equals the margin written out per pair: the follower's
-    half standstill gap and half speed plus its closing speed, the follower being whichever of i, j is behind."""
-    from simharness.sim import highway_dynamics as dyn
-
-    rng = np.random.default_rng(5)
-    for _ in range(30):
-        n = 30
-        x, y = np.round(rng.uniform(0, 80, n), 1), rng.uniform(-4, 4, n)
-        vx = rng.choice([0.0, 5.0, 8.0, 12.5], n) + np.round(rng.uniform(0, 2, n), 1)  # equal speeds occur
-        s0, hx, hy = rng.uniform(0.5, 3, n), rng.uniform(0.2, 6, n), rng.uniform(0.2, 1.3, n)
-        pw = dyn.pairwise(x, y, hx, hy)
-        ref = np.zeros((n, n), bool)
-        for i in range(n):
-            for j in range(n):
-                f, lead = (j, i) if pw.dx[i, j] < 0 else (i, j)  # f follows lead
-                ref[i, j] = i != j and pw.gap[i, j] < 0.5 * s0[f] + 0.5 * vx[f] + max(vx[f] - vx[lead], 0.0)
-        assert np.array_equal(dyn.side_windows(pw, vx, s0, None), ref)
-
-
 def test_may_overlap_never_rules_out_an_overlap():
     from simharness.metrics.collisions import boxes_overlap
     from simharness.sim.highway_dynamics import may_overlap

@@ -18,8 +18,11 @@ import numpy as np
 from simharness.scene import AgentType
 from simharness.sim import highway_dynamics as dyn
 from simharness.sim.highway_agents import PARAMS
+from simharness.sim.highway_crossing import crossing_clear
 from simharness.sim.highway_dynamics import CROSSING, VEHICLE, WALKING, TrafficState
 from simharness.sim.highway_events import EventScript
+from simharness.sim.highway_leaders import band_leaders, leaders
+from simharness.sim.highway_room import lateral_room
 
 EDGE_GAP = 0.2  # m kept between a vehicle and the carriageway edge
 PED_SPACING = 1.5  # m along the road between two crossing pedestrians at their start
@@ -247,18 +250,11 @@ class Traffic:
         self.steps += 1
         return events
 
-    def _sees(self, s: TrafficState) -> tuple[np.ndarray | None, np.ndarray | None]:
-        """(n, n) whom each agent takes into account, longitudinally and laterally (ego reaction applied);
-        None where everyone sees everyone else (no (n, n) mask to build or apply)."""
-        ego = np.flatnonzero(s.is_ego)
-        if not ego.size or self.ego_reaction not in ("ignore", "cut_in"):
-            return None, None
-        bg = ~s.is_ego
-        lat = ~np.eye(s.n, dtype=bool)
-        lat[np.ix_(bg, ego)] = False  # cut_in: re-added in _move for side-by-side only
-        if self.ego_reaction == "cut_in":
-            return None, lat
-        return lat, lat
+    def _ignores_ego(self, s: TrafficState) -> tuple[bool, bool]:
+        """Whether background agents leave the ego out of their leader search and out of their side windows."""
+        if self.ego_reaction not in ("ignore", "cut_in") or not s.is_ego.any():
+            return False, False
+        return self.ego_reaction == "ignore", True
 
     def _move(self, s: TrafficState, dt: float, ego_command: tuple[float, float] | None,
               script: tuple[np.ndarray, np.ndarray] | None = None) -> list[tuple[str, str]]:
@@ -270,18 +266,17 @@ class Traffic:
         any_commanded, any_scripted = bool(commanded.any()), bool(scripted.any())
         heading = s.headings()
         hx, hy = dyn.half_extents(s.length, s.width, heading)
-        pw = dyn.pairwise(s.x, s.y, hx, hy)
-        sees, sees_lat = self._sees(s)
+        ignore_lon, ignore_lat = self._ignores_ego(s)
 
         ped = np.flatnonzero(s.kind == CROSSING)
         walking_now = np.zeros(n, bool)
         if ped.size:
-            walking_now[ped] = dyn.crossing_clear(ped, s, hx, hy, None if sees is None else sees[ped],
-                                                    self.half_width)
+            walking_now[ped] = crossing_clear(ped, s.x, s.y, hx, hy, s.vx, s.v0, s.s0, s.b_comf, s.cross_dir,
+                                              s.kind == CROSSING, s.is_ego, ignore_lon, self.half_width)
         lo, hi = dyn.lateral_claims(s, hy, walking_now)
 
         # Longitudinal: IDM on the lane-free leader, then a hard clamp that keeps every gap open.
-        leader, gap = dyn.find_leaders(pw, s.y, hy, lo, hi, sees, 0.5 * self.min_gap_lat)
+        leader, gap = leaders(s.x, s.y, hx, hy, lo, hi, s.is_ego, ignore_lon, 0.5 * self.min_gap_lat)
         acc = dyn.idm_acceleration(s.vx, s.v0, s.a_max, s.b_comf, s.headway, s.s0, gap, s.vx[leader])
         if any_commanded:
             a_ego = float(np.clip(ego_command[0], -B_EGO, PARAMS["a_max"][s.agent_type[commanded][0]]))
@@ -296,11 +291,9 @@ class Traffic:
         self.emergency_stops += int(hard.sum())
 
         # Lateral: targets chosen by the agents, speeds limited by the room beside them.
-        window = dyn.side_windows(pw, s.vx, s.s0, sees_lat)
-        if self.ego_reaction == "cut_in" and s.is_ego.any():
-            window |= (~s.is_ego)[:, None] & s.is_ego[None, :] & (pw.gap < self.min_gap_lat)
-        room_l, room_r = dyn.lateral_room(pw, window)
-        self._decide_targets(s, pw, hy, lo, hi, sees, room_l, room_r, fixed, dt)
+        ego_gap = self.min_gap_lat if self.ego_reaction == "cut_in" else -np.inf  # cut_in: side by side only
+        room_l, room_r = lateral_room(s.x, s.y, hx, hy, s.vx, s.s0, s.is_ego, ignore_lat, ego_gap)
+        self._decide_targets(s, hx, hy, lo, hi, ignore_lon, room_l, room_r, fixed, dt)
         speed_share = dyn.clip(s.vx / 4.0, 0.0, 1.0)  # no sideways motion without forward speed
         vy_lim = s.vy_max * speed_share
         vy_des = dyn.clip(dyn.LAT_GAIN * (s.y_target - s.y), -vy_lim, vy_lim)
@@ -335,8 +328,8 @@ class Traffic:
         s.vy = move / dt
         return events
 
-    def _decide_targets(self, s: TrafficState, pw: dyn.Pairwise, hy: np.ndarray, lo: np.ndarray, hi: np.ndarray,
-                        sees: np.ndarray | None, room_l: np.ndarray, room_r: np.ndarray, commanded: np.ndarray,
+    def _decide_targets(self, s: TrafficState, hx: np.ndarray, hy: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                        ignore_ego: bool, room_l: np.ndarray, room_r: np.ndarray, commanded: np.ndarray,
                         dt: float) -> None:
         """Re-choose the lateral target of a rotating share of the vehicles (each every decision_period)."""
         every = max(1, int(round(float(self.config["decision_period"]) / dt)))
@@ -352,13 +345,10 @@ class Traffic:
         ok = inside & reach
         ok[:, -2] = self.lane_centres is None  # staying put is always allowed without lane discipline
         ok[:, -1] = inside[:, -1]  # the current plan stays valid while blocked
-        ahead = pw.dx[rows] > 0
-        if sees is not None:
-            ahead &= sees[rows]
         # Only offsets it may take are scored (the rest score -inf whatever their gap), and leaders beyond
         # LOOKAHEAD do not change a score (free road either way): neither is looked for.
-        gap, v_lead = dyn.band_gaps(pw.gap[rows], cand, hy[rows], lo, hi, ahead, s.vx, 0.5 * self.min_gap_lat,
-                                    horizon=dyn.LOOKAHEAD, want=ok)
+        gap, v_lead = band_leaders(rows, cand, ok, s.x, hx, hy, lo, hi, s.vx, s.is_ego, ignore_ego,
+                                   0.5 * self.min_gap_lat, dyn.LOOKAHEAD)
         slow = s.v0[rows] < 0.6 * self.speed_limit
         scores = dyn.offset_scores(gap, v_lead, s.vx[rows], s.v0[rows], s.s0[rows], s.headway[rows], s.b_comf[rows],
                                    cand, s.y[rows], np.where(slow, 1.5, 0.0), self.half_width)
