@@ -11,6 +11,7 @@ import pytest
 
 from simharness.sim import highway_dynamics as dyn
 from simharness.sim.highway_crossing import crossing_clear
+from simharness.sim.highway_decision import CUT_IN_BONUS, choose_offsets
 from simharness.sim.highway_leaders import band_leaders, leaders
 from simharness.sim.highway_room import lateral_room
 
@@ -147,4 +148,60 @@ def test_crossing_clear_matches_the_table_test(ignore):
         ref = ~(blocked & (lo < 4.0) & (hi > -4.0))
         got = crossing_clear(ped, x, y, hx, hy, a["vx"], a["v0"], a["s0"], a["b"], a["cross_dir"], crossing,
                              a["is_ego"], ignore, 4.0)
+        assert np.array_equal(got, ref)
+
+
+def offset_scores(gap, v_lead, v, v0, s0, headway, b, cand_y, y, kerb_bias, kerb_y):  # noqa: ANN001, ANN201
+    """The (R, C) numpy formulation of the offset score."""
+    free = gap > dyn.LOOKAHEAD
+    hold = np.where(free, v0[:, None], v_lead + np.maximum(gap - s0[:, None], 0.0) / (headway[:, None] + 0.5))
+    hold = np.minimum(hold, v0[:, None])
+    closing = np.maximum(v[:, None] - np.where(free, v[:, None], v_lead), 0.0)
+    unsafe = closing**2 > 2.0 * b[:, None] * np.maximum(gap - s0[:, None], 0.01)
+    kerb = kerb_bias[:, None] * np.abs(cand_y - kerb_y) / max(abs(kerb_y) * 2, 1e-6)
+    return np.where(unsafe, -np.inf, hold - dyn.LAT_COST * np.abs(cand_y - y[:, None]) - kerb)
+
+
+@pytest.mark.parametrize("stay_allowed", [True, False])
+def test_choose_offsets_matches_the_table_decision(stay_allowed):
+    """Candidates, reachability, scores, the cut-in bonus, argmax (ties to the first offset) and the switch rule
+    as (R, C) numpy tables; the leaders come from band_leaders (tested above)."""
+    rng = np.random.default_rng(11)
+    half_width, edge, min_gap = 5.25, 0.2, 0.3
+    for _ in range(60):
+        a = scene(rng, int(rng.integers(2, 50)))
+        n = a["x"].size
+        rows = np.sort(rng.choice(n, int(rng.integers(1, n + 1)), replace=False))
+        grid = np.arange(-half_width, half_width + 1e-9, rng.choice([0.35, 1.0, 3.5]))
+        y_target = np.round(a["y"] + rng.normal(0, 1, n), 1)
+        room_l, room_r = rng.choice([0.1, 0.5, 2.0, np.inf], n), rng.choice([0.1, 0.5, 2.0, np.inf], n)
+        v0, headway = a["v0"] * 8, rng.uniform(0.8, 2, n)
+        margin = rng.uniform(0.1, 1.0, n)
+        kerb_bias = rng.choice([0.0, 1.5], rows.size)
+        cut_in = rng.random(rows.size) < 0.3
+        ego_y, ego_hy = float(rng.uniform(-3, 3)), 0.9
+        ignore = bool(rng.random() < 0.5)
+
+        cand = np.empty((rows.size, grid.size + 2))
+        cand[:, :-2], cand[:, -2], cand[:, -1] = grid, a["y"][rows], y_target[rows]
+        inside = np.abs(cand) + a["hy"][rows, None] <= half_width - edge
+        shift = cand - a["y"][rows, None]
+        ok = inside & (shift <= room_l[rows, None] - min_gap) & (shift >= -(room_r[rows, None] - min_gap))
+        ok[:, -2] = stay_allowed
+        ok[:, -1] = inside[:, -1]
+        gap, v_lead = band_leaders(rows, cand, ok, a["x"], a["hx"], a["hy"], a["lo"], a["hi"], a["vx"], a["is_ego"],
+                                   ignore, 0.5 * min_gap, dyn.LOOKAHEAD)
+        scores = offset_scores(gap, v_lead, a["vx"][rows], v0[rows], a["s0"][rows], headway[rows], a["b"][rows],
+                               cand, a["y"][rows], kerb_bias, half_width)
+        scores += np.where(cut_in[:, None] & (np.abs(cand - ego_y) < a["hy"][rows, None] + ego_hy), CUT_IN_BONUS, 0.0)
+        scores = np.where(ok, scores, -np.inf)
+        best = np.argmax(scores, axis=1)
+        top, plan = scores[np.arange(rows.size), best], scores[:, -1]
+        gain = np.where(np.isfinite(plan), top - np.where(np.isfinite(plan), plan, 0.0), np.inf)
+        gain = np.where(np.isfinite(top), gain, -np.inf)
+        ref = np.where(gain > margin[rows], cand[np.arange(rows.size), best], y_target[rows])
+
+        got = choose_offsets(rows, grid, stay_allowed, a["x"], a["y"], y_target, a["hx"], a["hy"], a["lo"], a["hi"],
+                             a["vx"], v0, a["s0"], headway, a["b"], margin, room_l, room_r, a["is_ego"], ignore,
+                             kerb_bias, cut_in, ego_y, ego_hy, half_width, edge, min_gap)
         assert np.array_equal(got, ref)

@@ -160,24 +160,6 @@ def clamp_to_leaders(v_new: np.ndarray, leader: np.ndarray, gap: np.ndarray, dt:
     return v
 
 
-def offset_scores(gap: np.ndarray, v_lead: np.ndarray, v: np.ndarray, v0: np.ndarray, s0: np.ndarray,
-                  headway: np.ndarray, b: np.ndarray, cand_y: np.ndarray, y: np.ndarray, kerb_bias: np.ndarray,
-                  kerb_y: float) -> np.ndarray:
-    """Score (R, C) in m/s of each candidate offset: speed one could hold there, minus the cost of moving.
-
-    gap, v_lead, cand_y (R, C); v, v0, s0, headway, b (comfortable deceleration), y, kerb_bias (R,)
-    (m/s per carriageway width that slow vehicles give up by staying away from the kerb at kerb_y).
-    An offset whose leader would need harder than comfortable braking scores -inf (unsafe).
-    """
-    free = gap > LOOKAHEAD
-    hold = np.where(free, v0[:, None], v_lead + np.maximum(gap - s0[:, None], 0.0) / (headway[:, None] + 0.5))
-    hold = np.minimum(hold, v0[:, None])
-    closing = np.maximum(v[:, None] - np.where(free, v[:, None], v_lead), 0.0)
-    unsafe = closing**2 > 2.0 * b[:, None] * np.maximum(gap - s0[:, None], 0.01)
-    kerb = kerb_bias[:, None] * np.abs(cand_y - kerb_y) / max(abs(kerb_y) * 2, 1e-6)
-    return np.where(unsafe, -np.inf, hold - LAT_COST * np.abs(cand_y - y[:, None]) - kerb)
-
-
 def safe_lateral_moves(move: np.ndarray, vx: np.ndarray, length: np.ndarray, width: np.ndarray,
                        hy: np.ndarray, up: np.ndarray, down: np.ndarray, dt: float) -> np.ndarray:
     """Largest of (move, move/2, 0) (n,) m whose box, turned to the new heading, stays within the room.

@@ -19,15 +19,15 @@ from simharness.scene import AgentType
 from simharness.sim import highway_dynamics as dyn
 from simharness.sim.highway_agents import PARAMS
 from simharness.sim.highway_crossing import crossing_clear
+from simharness.sim.highway_decision import choose_offsets
 from simharness.sim.highway_dynamics import CROSSING, VEHICLE, WALKING, TrafficState
 from simharness.sim.highway_events import EventScript
-from simharness.sim.highway_leaders import band_leaders, leaders
+from simharness.sim.highway_leaders import leaders
 from simharness.sim.highway_room import lateral_room
 
 EDGE_GAP = 0.2  # m kept between a vehicle and the carriageway edge
 PED_SPACING = 1.5  # m along the road between two crossing pedestrians at their start
 CUT_IN_RANGE = 10.0  # m ahead of the ego's front within which background agents cut in (cut_in setting)
-CUT_IN_BONUS = 3.0  # m/s of score for taking the band in front of the ego (cut_in setting)
 QUEUE_MAX = 200  # arrivals waiting for room; beyond this new arrivals are dropped (and counted)
 
 
@@ -336,41 +336,22 @@ class Traffic:
         rows = np.flatnonzero((s.kind == VEHICLE) & ~commanded & (s.uid % every == self.steps % every))
         if rows.size == 0:
             return
-        grid = self._grid()
-        cand = np.empty((rows.size, grid.size + 2))  # (R, C + 2): the grid, where one is, one's current target
-        cand[:, :-2], cand[:, -2], cand[:, -1] = grid, s.y[rows], s.y_target[rows]
-        inside = np.abs(cand) + hy[rows, None] <= self.half_width - EDGE_GAP
-        shift = cand - s.y[rows, None]
-        reach = (shift <= room_l[rows, None] - self.min_gap_lat) & (shift >= -(room_r[rows, None] - self.min_gap_lat))
-        ok = inside & reach
-        ok[:, -2] = self.lane_centres is None  # staying put is always allowed without lane discipline
-        ok[:, -1] = inside[:, -1]  # the current plan stays valid while blocked
-        # Only offsets it may take are scored (the rest score -inf whatever their gap), and leaders beyond
-        # LOOKAHEAD do not change a score (free road either way): neither is looked for.
-        gap, v_lead = band_leaders(rows, cand, ok, s.x, hx, hy, lo, hi, s.vx, s.is_ego, ignore_ego,
-                                   0.5 * self.min_gap_lat, dyn.LOOKAHEAD)
-        slow = s.v0[rows] < 0.6 * self.speed_limit
-        scores = dyn.offset_scores(gap, v_lead, s.vx[rows], s.v0[rows], s.s0[rows], s.headway[rows], s.b_comf[rows],
-                                   cand, s.y[rows], np.where(slow, 1.5, 0.0), self.half_width)
-        scores += self._cut_in_bonus(s, rows, cand, hy)
-        scores = np.where(ok, scores, -np.inf)
-        best = np.argmax(scores, axis=1)
-        top, plan = scores[np.arange(rows.size), best], scores[:, -1]
-        gain = np.where(np.isfinite(plan), top - np.where(np.isfinite(plan), plan, 0.0), np.inf)
-        gain = np.where(np.isfinite(top), gain, -np.inf)  # nowhere safe: keep the plan
-        switch = gain > s.switch_margin[rows]
-        s.y_target[rows] = np.where(switch, cand[np.arange(rows.size), best], s.y_target[rows])
+        kerb_bias = np.where(s.v0[rows] < 0.6 * self.speed_limit, 1.5, 0.0)  # slow vehicles keep to the kerb
+        cut_in, ego_y, ego_hy = self._cut_in_rows(s, rows, hy)
+        s.y_target[rows] = choose_offsets(
+            rows, self._grid(), self.lane_centres is None, s.x, s.y, s.y_target, hx, hy, lo, hi, s.vx, s.v0, s.s0,
+            s.headway, s.b_comf, s.switch_margin, room_l, room_r, s.is_ego, ignore_ego, kerb_bias, cut_in, ego_y,
+            ego_hy, self.half_width, EDGE_GAP, self.min_gap_lat)
 
-    def _cut_in_bonus(self, s: TrafficState, rows: np.ndarray, cand: np.ndarray, hy: np.ndarray) -> np.ndarray:
-        """(R, C) m/s added, in the cut_in setting, to offsets in front of the ego for agents just ahead of it:
-        they merge into its band the way a driver who has just overtaken does, without yielding to it."""
+    def _cut_in_rows(self, s: TrafficState, rows: np.ndarray, hy: np.ndarray) -> tuple[np.ndarray, float, float]:
+        """Which deciding rows (R,) bool get the cut-in bonus in the ego's band, and that band (centre, half width
+        m): in the cut_in setting, agents just ahead of the ego merge into its band the way a driver who has just
+        overtaken does, without yielding to it."""
         e = self.ego_row
         if self.ego_reaction != "cut_in" or e < 0:
-            return np.zeros(cand.shape)
+            return np.zeros(rows.size, bool), 0.0, 0.0
         lead = (s.x[rows] - 0.5 * s.length[rows]) - (s.x[e] + 0.5 * s.length[e])
-        near = (lead > 0) & (lead < CUT_IN_RANGE) & ~s.is_ego[rows]
-        in_band = np.abs(cand - s.y[e]) < hy[rows, None] + hy[e]
-        return np.where(near[:, None] & in_band, CUT_IN_BONUS, 0.0)
+        return (lead > 0) & (lead < CUT_IN_RANGE) & ~s.is_ego[rows], float(s.y[e]), float(hy[e])
 
     def _remove_departed(self) -> None:
         s = self.state
