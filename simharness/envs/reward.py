@@ -15,9 +15,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from simharness.envs.ttc_window import ttc_candidates
 from simharness.metrics.collisions import boxes_overlap
 from simharness.sim.base import Frame
-from simharness.sim.highway_dynamics import may_overlap
 
 TTC_HORIZON = 3.0  # s
 TTC_STEP = 0.1  # s between sampled times
@@ -80,30 +80,13 @@ def _min_ttc(frame: Frame, xy: np.ndarray, heading: np.ndarray, length: np.ndarr
     """First sampled time (s) the ego's box overlaps another's under constant velocity; TTC_CAP if none."""
     e = frame.ego
     speed = frame.speed.astype(np.float64)
-    vel = speed[:, None] * np.stack([np.cos(heading), np.sin(heading)], -1)
-    dv = vel - vel[e]
-    # |rel + dv tau| <= reach  <=>  a tau^2 + 2 b tau + c <= 0
-    a, b, c = (dv ** 2).sum(-1), (rel * dv).sum(-1), d ** 2 - reach ** 2
-    disc = b ** 2 - a * c
-    ok = (disc >= 0) & ((c <= 0) | (a > 0))
-    ok[e] = False
-    root = np.sqrt(np.maximum(disc, 0.0))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        lo = np.where(c <= 0, 0.0, (-b - root) / a)
-        hi = np.where(a > 0, (-b + root) / a, np.inf)
-    ok &= (hi >= 0) & (lo <= TTC_HORIZON)
-    rows = np.flatnonzero(ok)
-    if rows.size == 0:
+    cos_h, sin_h = np.cos(heading), np.sin(heading)
+    vel = speed[:, None] * np.stack([cos_h, sin_h], -1)
+    r, tau = ttc_candidates(xy, rel, d, reach, vel, cos_h, sin_h, length, width, e, _TAUS, TTC_HORIZON)
+    if r.size == 0:
         return TTC_CAP
-    window = (_TAUS[None] >= lo[rows, None] - 1e-6) & (_TAUS[None] <= hi[rows, None] + 1e-6)  # (P, K)
-    p, k = np.nonzero(window)
-    r, tau = rows[p], _TAUS[k]
     pa, pe = xy[r] + vel[r] * tau[:, None], xy[e] + vel[e] * tau[:, None]
-    keep = np.flatnonzero(may_overlap(pa - pe, heading[r], length[r], width[r], heading[e], length[e], width[e]))
-    if keep.size == 0:
-        return TTC_CAP
-    r, tau = r[keep], tau[keep]
-    hit = boxes_overlap(pa[keep], heading[r], length[r], width[r], pe[keep], np.full(r.size, heading[e]),
+    hit = boxes_overlap(pa, heading[r], length[r], width[r], pe, np.full(r.size, heading[e]),
                         np.full(r.size, length[e]), np.full(r.size, width[e]))
     return float(tau[hit].min()) if hit.any() else TTC_CAP
 
