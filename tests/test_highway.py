@@ -202,17 +202,3 @@ def test_env_feels_like_highway_env():
 def test_unsupported_layout_is_a_user_error():
     with pytest.raises(UserError, match="road.layout"):
         make_simulator(short(**{"road.layout": "intersection"}))
-
-
-def test_may_overlap_never_rules_out_an_overlap():
-    from simharness.metrics.collisions import boxes_overlap
-    from simharness.sim.highway_dynamics import may_overlap
-
-    rng = np.random.default_rng(2)
-    p = 20000
-    rel = rng.uniform(-8, 8, (p, 2))
-    ha, la, wa = rng.uniform(-np.pi, np.pi, p), rng.uniform(0.4, 12, p), rng.uniform(0.4, 2.6, p)
-    hb, lb, wb = 0.3, 4.5, 1.8
-    hit = boxes_overlap(rel, ha, la, wa, np.zeros((p, 2)), np.full(p, hb), np.full(p, lb), np.full(p, wb))
-    may = may_overlap(rel, ha, la, wa, hb, lb, wb)
-    assert hit.any() and (~may).any() and not np.any(hit & ~may)

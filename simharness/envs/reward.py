@@ -15,8 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from simharness.envs.ttc_window import ttc_candidates
-from simharness.metrics.collisions import boxes_overlap
+from simharness.envs.ttc import min_ttc
+from simharness.metrics.separating_axis import gaps
 from simharness.sim.base import Frame
 
 TTC_HORIZON = 3.0  # s
@@ -60,19 +60,10 @@ def ego_gaps(xy: np.ndarray, heading: np.ndarray, length: np.ndarray, width: np.
     """`safety.min_gap` of the ego (row e) to the agents `rows` (P,) at one frame: (P,) float32 m, the same
     floats, computed per axis component instead of through its (P, 4, 2) stacks and einsums (a tenth of
     the calls). xy (n, 2) m, heading (n,) rad, length, width (n,) m, all float64."""
-    ha, hb = heading[rows], np.full(rows.size, heading[e])
-    rel = xy[e] - xy[rows]  # (P, 2) ego centre from each agent
-    axes = [(np.cos(h), np.sin(h)) for h in (ha, ha + np.pi / 2, hb, hb + np.pi / 2)]
-    fa, fb = (np.cos(ha), np.sin(ha)), (np.cos(hb), np.sin(hb))  # forward; left is (-sin, cos)
-    la, wa = length[rows] / 2, width[rows] / 2
-    lb, wb = np.full(rows.size, length[e]) / 2, np.full(rows.size, width[e]) / 2
-    sep = None
-    for ax, ay in axes:
-        s = (np.abs(ax * rel[:, 0] + ay * rel[:, 1])
-             - (np.abs(ax * fa[0] + ay * fa[1]) * la + np.abs(ax * -fa[1] + ay * fa[0]) * wa)
-             - (np.abs(ax * fb[0] + ay * fb[1]) * lb + np.abs(ax * -fb[1] + ay * fb[0]) * wb))
-        sep = s if sep is None else np.maximum(sep, s)
-    return np.maximum(sep, 0.0).astype(np.float32)
+    h = np.concatenate([heading, heading + np.pi / 2])  # the axes: each box's forward and left directions
+    c, s = np.cos(h), np.sin(h)
+    n = heading.size
+    return gaps(xy[e] - xy[rows], c[:n], s[:n], c[n:], s[n:], length, width, e, rows)
 
 
 def _min_ttc(frame: Frame, xy: np.ndarray, heading: np.ndarray, length: np.ndarray, width: np.ndarray,
@@ -82,13 +73,7 @@ def _min_ttc(frame: Frame, xy: np.ndarray, heading: np.ndarray, length: np.ndarr
     speed = frame.speed.astype(np.float64)
     cos_h, sin_h = np.cos(heading), np.sin(heading)
     vel = speed[:, None] * np.stack([cos_h, sin_h], -1)
-    r, tau = ttc_candidates(xy, rel, d, reach, vel, cos_h, sin_h, length, width, e, _TAUS, TTC_HORIZON)
-    if r.size == 0:
-        return TTC_CAP
-    pa, pe = xy[r] + vel[r] * tau[:, None], xy[e] + vel[e] * tau[:, None]
-    hit = boxes_overlap(pa, heading[r], length[r], width[r], pe, np.full(r.size, heading[e]),
-                        np.full(r.size, length[e]), np.full(r.size, width[e]))
-    return float(tau[hit].min()) if hit.any() else TTC_CAP
+    return float(min_ttc(xy, rel, d, reach, vel, cos_h, sin_h, length, width, e, _TAUS, TTC_HORIZON, TTC_CAP))
 
 
 def step_reward(weights: dict[str, float], moved: float, new_contact: bool, accel: float, prev_accel: float,

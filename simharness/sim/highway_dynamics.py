@@ -96,21 +96,6 @@ def half_extents(length: np.ndarray, width: np.ndarray, heading: np.ndarray) -> 
     return 0.5 * (length * c + width * s), 0.5 * (length * s + width * c)
 
 
-def may_overlap(rel: np.ndarray, ha: np.ndarray, la: np.ndarray, wa: np.ndarray, hb: float, lb: float,
-                 wb: float) -> np.ndarray:
-    """(P,) bool, False only where `boxes_overlap` is surely False: the centres (rel (P, 2) m, a minus b)
-    lie more than 1e-6 m beyond the two boxes' projection radii along one of the four box axes."""
-    ca, sa, cb, sb = np.cos(ha), np.sin(ha), np.cos(hb), np.sin(hb)
-    cos_d, sin_d = np.abs(ca * cb + sa * sb), np.abs(sa * cb - ca * sb)  # |cos|, |sin| of the angle between them
-    la, wa, lb, wb = 0.5 * la, 0.5 * wa, 0.5 * lb, 0.5 * wb
-    x, y = rel[:, 0], rel[:, 1]
-    ok = np.abs(x * ca + y * sa) <= la + lb * cos_d + wb * sin_d + 1e-6  # along a's heading
-    ok &= np.abs(y * ca - x * sa) <= wa + lb * sin_d + wb * cos_d + 1e-6  # across a
-    ok &= np.abs(x * cb + y * sb) <= lb + la * cos_d + wa * sin_d + 1e-6  # along b's heading
-    ok &= np.abs(y * cb - x * sb) <= wb + la * sin_d + wa * cos_d + 1e-6  # across b
-    return ok
-
-
 def lateral_claims(s: TrafficState, hy: np.ndarray, walking_now: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Lateral interval each agent occupies now or will soon: (lo, hi) (n,) m.
 

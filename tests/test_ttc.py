@@ -1,4 +1,4 @@
-"""The reward's compiled time-to-collision candidates against the numpy formulation they replaced."""
+"""The reward's compiled time to collision against the numpy formulation it replaced."""
 
 from __future__ import annotations
 
@@ -8,7 +8,19 @@ import numpy as np
 
 from simharness.envs import reward
 from simharness.metrics.collisions import boxes_overlap
-from simharness.sim.highway_dynamics import may_overlap
+
+
+def may_overlap(rel, ha, la, wa, hb, lb, wb):  # noqa: ANN001, ANN201
+    """The (P,) numpy four-axis bound."""
+    ca, sa, cb, sb = np.cos(ha), np.sin(ha), np.cos(hb), np.sin(hb)
+    cos_d, sin_d = np.abs(ca * cb + sa * sb), np.abs(sa * cb - ca * sb)
+    la, wa, lb, wb = 0.5 * la, 0.5 * wa, 0.5 * lb, 0.5 * wb
+    x, y = rel[:, 0], rel[:, 1]
+    ok = np.abs(x * ca + y * sa) <= la + lb * cos_d + wb * sin_d + 1e-6
+    ok &= np.abs(y * ca - x * sa) <= wa + lb * sin_d + wb * cos_d + 1e-6
+    ok &= np.abs(x * cb + y * sb) <= lb + la * cos_d + wa * sin_d + 1e-6
+    ok &= np.abs(y * cb - x * sb) <= wb + la * sin_d + wa * cos_d + 1e-6
+    return ok
 
 
 def numpy_min_ttc(frame, xy, heading, length, width, rel, d, reach) -> float:  # noqa: ANN001
