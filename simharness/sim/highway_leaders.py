@@ -1,9 +1,10 @@
 """Lane-free leader search, compiled: the nearest agent ahead in a lateral band, per agent and per candidate offset.
 
-Each kernel visits the (agent, other) pairs once, in column order, with the float64 arithmetic of the
-(n, n) table formulation it replaces (dx = x_j - x_i, bumper gap |dx| - (hx_i + hx_j)), so results are the
-same bit for bit and ties go to the lowest row, as `np.argmin` over a row does. A small numpy call costs
-about a microsecond whatever its size, and the tables took tens of calls per step; here it is one call.
+Each kernel scans the agents ahead in x order and stops where no box farther on can be nearer (a lower bound on
+the bumper gap; float rounding is monotone, so the bound holds for the computed gaps too), with the float64
+arithmetic of the (n, n) table formulation it replaces (dx = x_j - x_i, bumper gap |dx| - (hx_i + hx_j)): the
+results are the same bit for bit, ties going to the lowest row as `np.argmin` over a row does. A small numpy
+call costs about a microsecond whatever its size, and the tables took tens of calls per step; here it is one.
 
 `ignore_ego`: background agents do not see the ego (the `ignore` reaction): agent i takes agent j into
 account unless i is background and j is the ego.
@@ -28,12 +29,21 @@ def leaders(x: np.ndarray, y: np.ndarray, hx: np.ndarray, hy: np.ndarray, claim_
     n = x.size
     leader = np.zeros(n, np.intp)
     best = np.full(n, np.inf)
-    for i in range(n):
+    if n == 0:
+        return leader, best
+    order = np.argsort(x)
+    hx_max = hx.max()
+    for p in range(n):
+        i = order[p]
         band_hi, band_lo = y[i] + hy[i] + margin, y[i] - hy[i] - margin
         skip_ego = ignore_ego and not is_ego[i]
+        reach = hx[i] + hx_max
         b, bj = np.inf, 0
-        for j in range(n):
+        for q in range(p + 1, n):  # ahead in x order: the search stops once no box farther on can be nearer
+            j = order[q]
             dx = x[j] - x[i]
+            if dx - reach > b:
+                break  # every gap from here on is at least this (rounding is monotone): none beats or ties b
             if not dx > 0 or (skip_ego and is_ego[j]):
                 continue
             gap = abs(dx) - (hx[i] + hx[j])
@@ -41,7 +51,7 @@ def leaders(x: np.ndarray, y: np.ndarray, hx: np.ndarray, hy: np.ndarray, claim_
                 if not abs(y[j] - y[i]) - (hy[i] + hy[j]) < margin:
                     continue
             g = max(gap, 0.01)
-            if g < b:
+            if g < b or (g == b and j < bj):  # ties to the lowest row, as np.argmin over a row
                 b, bj = g, j
         leader[i], best[i] = bj, b
     return leader, best
@@ -62,14 +72,24 @@ def band_leaders(rows: np.ndarray, cand_y: np.ndarray, want: np.ndarray, x: np.n
     gap = np.full((r_n, c_n), np.inf)
     v_lead = np.full((r_n, c_n), np.inf)
     n = x.size
-    near = np.empty(n, np.intp)  # one row's leader candidates, in column order
+    if n == 0:
+        return gap, v_lead
+    order = np.argsort(x)
+    rank = np.empty(n, np.intp)
+    rank[order] = np.arange(n)
+    hx_max = hx.max()
+    near = np.empty(n, np.intp)  # one row's leader candidates, in x order
     near_g = np.empty(n)
     for r in range(r_n):
         i = rows[r]
         skip_ego = ignore_ego and not is_ego[i]
+        reach = hx[i] + hx_max
         k = 0
-        for j in range(n):
+        for q in range(rank[i] + 1, n):  # ahead in x order, up to the horizon
+            j = order[q]
             dx = x[j] - x[i]
+            if dx - reach > horizon:
+                break  # every gap from here on is beyond the horizon (rounding is monotone)
             if not dx > 0 or (skip_ego and is_ego[j]):
                 continue
             g = max(abs(dx) - (hx[i] + hx[j]), 0.0)
@@ -84,8 +104,8 @@ def band_leaders(rows: np.ndarray, cand_y: np.ndarray, want: np.ndarray, x: np.n
             b, bj = np.inf, -1
             for m in range(k):
                 j = near[m]
-                if claim_lo[j] < band_hi and claim_hi[j] > band_lo and near_g[m] < b:
-                    b, bj = near_g[m], j
+                if claim_lo[j] < band_hi and claim_hi[j] > band_lo and (near_g[m] < b or (near_g[m] == b and j < bj)):
+                    b, bj = near_g[m], j  # ties to the lowest row, as np.argmin over a row
             if bj >= 0:
                 gap[r, c], v_lead[r, c] = b, vx[bj]
     return gap, v_lead
