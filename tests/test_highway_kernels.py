@@ -17,8 +17,9 @@ from simharness.sim.highway_room import lateral_room
 
 
 def scene(rng: np.random.Generator, n: int) -> dict[str, np.ndarray]:
-    """n agents on 60 m of road, positions and speeds rounded so that equal gaps and speeds (ties) occur."""
-    x = np.round(rng.uniform(0, 60, n), 1)
+    """n agents on 60 or 400 m of road (the scans along x stop early on the long one), positions and speeds
+    rounded so that equal gaps and speeds (ties) occur."""
+    x = np.round(rng.uniform(0, rng.choice([60.0, 400.0]), n), 1)
     y = np.round(rng.uniform(-5, 5, n), 1)
     hx, hy = rng.choice([0.3, 1.0, 2.25, 6.0], n), rng.choice([0.3, 0.45, 0.9, 1.25], n)
     vx = rng.choice([0.0, -0.0, 4.0, 8.0, 12.5], n) + np.round(rng.uniform(0, 1, n), 1) * (rng.random(n) < 0.5)
