@@ -67,7 +67,7 @@ def test_leaders_match_the_table_search(ignore):
         cand |= lat_gap < m
         cand &= (dx > 0) & sees(a, ignore)
         ref_j, ref_g = masked_argmin(np.maximum(gap, 0.01), cand)
-        j, g = leaders(a["x"], a["y"], a["hx"], a["hy"], a["lo"], a["hi"], a["is_ego"], ignore, m)
+        j, g = leaders(np.argsort(a["x"]), a["x"], a["y"], a["hx"], a["hy"], a["lo"], a["hi"], a["is_ego"], ignore, m)
         assert np.array_equal(j, ref_j) and np.array_equal(g, ref_g)
 
 
@@ -89,8 +89,8 @@ def test_band_leaders_match_the_search_over_everyone_where_they_look(ignore):
              (a["hi"][None, None] > (cand - a["hy"][rows, None] - 0.15)[..., None]) & ahead[rows][:, None]
         j, ref_gap = masked_argmin(np.broadcast_to(np.maximum(gap[rows], 0.0)[:, None], ov.shape), ov)
         ref_v = np.where(np.isfinite(ref_gap), a["vx"][j], np.inf)
-        g, v = band_leaders(rows, cand, want, a["x"], a["hx"], a["hy"], a["lo"], a["hi"], a["vx"], a["is_ego"],
-                            ignore, 0.15, horizon)
+        g, v = band_leaders(np.argsort(a["x"]), rows, cand, want, a["x"], a["hx"], a["hy"], a["lo"], a["hi"], a["vx"],
+                            a["is_ego"], ignore, 0.15, horizon)
         near = want & (ref_gap <= horizon)
         assert np.array_equal(g[near], ref_gap[near]) and np.array_equal(v[near], ref_v[near])
         assert np.all(np.isinf(g[~near])) and np.all(np.isinf(v[~near]))
@@ -119,8 +119,8 @@ def test_lateral_room_matches_the_side_window_tables(reaction):
         beside = window & (lat_gap >= -1e-9)
         _, ref_l = masked_argmin(lat_gap, beside & (dy > 0))
         _, ref_r = masked_argmin(lat_gap, beside & (dy < 0))
-        left, right = lateral_room(a["x"], a["y"], a["hx"], a["hy"], a["vx"], a["s0"], a["is_ego"], ignore,
-                                   0.3 if reaction == "cut_in" else -np.inf)
+        left, right = lateral_room(np.argsort(a["x"]), a["x"], a["y"], a["hx"], a["hy"], a["vx"], a["s0"], a["is_ego"],
+                                   ignore, 0.3 if reaction == "cut_in" else -np.inf)
         assert np.array_equal(left, ref_l) and np.array_equal(right, ref_r)
 
 
@@ -190,8 +190,9 @@ def test_choose_offsets_matches_the_table_decision(stay_allowed):
         ok = inside & (shift <= room_l[rows, None] - min_gap) & (shift >= -(room_r[rows, None] - min_gap))
         ok[:, -2] = stay_allowed
         ok[:, -1] = inside[:, -1]
-        gap, v_lead = band_leaders(rows, cand, ok, a["x"], a["hx"], a["hy"], a["lo"], a["hi"], a["vx"], a["is_ego"],
-                                   ignore, 0.5 * min_gap, dyn.LOOKAHEAD)
+        order = np.argsort(a["x"])
+        gap, v_lead = band_leaders(order, rows, cand, ok, a["x"], a["hx"], a["hy"], a["lo"], a["hi"], a["vx"],
+                                   a["is_ego"], ignore, 0.5 * min_gap, dyn.LOOKAHEAD)
         scores = offset_scores(gap, v_lead, a["vx"][rows], v0[rows], a["s0"][rows], headway[rows], a["b"][rows],
                                cand, a["y"][rows], kerb_bias, half_width)
         scores += np.where(cut_in[:, None] & (np.abs(cand - ego_y) < a["hy"][rows, None] + ego_hy), CUT_IN_BONUS, 0.0)
@@ -202,7 +203,7 @@ def test_choose_offsets_matches_the_table_decision(stay_allowed):
         gain = np.where(np.isfinite(top), gain, -np.inf)
         ref = np.where(gain > margin[rows], cand[np.arange(rows.size), best], y_target[rows])
 
-        got = choose_offsets(rows, grid, stay_allowed, a["x"], a["y"], y_target, a["hx"], a["hy"], a["lo"], a["hi"],
-                             a["vx"], v0, a["s0"], headway, a["b"], margin, room_l, room_r, a["is_ego"], ignore,
-                             kerb_bias, cut_in, ego_y, ego_hy, half_width, edge, min_gap)
+        got = choose_offsets(order, rows, grid, stay_allowed, a["x"], a["y"], y_target, a["hx"], a["hy"], a["lo"],
+                             a["hi"], a["vx"], v0, a["s0"], headway, a["b"], margin, room_l, room_r, a["is_ego"],
+                             ignore, kerb_bias, cut_in, ego_y, ego_hy, half_width, edge, min_gap)
         assert np.array_equal(got, ref)

@@ -36,21 +36,22 @@ def offset_score(gap: float, v_lead: float, v: float, v0: float, s0: float, head
 
 
 @njit(cache=True)
-def choose_offsets(rows: np.ndarray, grid: np.ndarray, stay_allowed: bool, x: np.ndarray, y: np.ndarray,
-                   y_target: np.ndarray, hx: np.ndarray, hy: np.ndarray, claim_lo: np.ndarray, claim_hi: np.ndarray,
-                   vx: np.ndarray, v0: np.ndarray, s0: np.ndarray, headway: np.ndarray, b_comf: np.ndarray,
-                   switch_margin: np.ndarray, room_l: np.ndarray, room_r: np.ndarray, is_ego: np.ndarray,
-                   ignore_ego: bool, kerb_bias: np.ndarray, cut_in: np.ndarray, ego_y: float, ego_hy: float,
-                   half_width: float, edge_gap: float, min_gap_lat: float) -> np.ndarray:
+def choose_offsets(order: np.ndarray, rows: np.ndarray, grid: np.ndarray, stay_allowed: bool, x: np.ndarray,
+                   y: np.ndarray, y_target: np.ndarray, hx: np.ndarray, hy: np.ndarray, claim_lo: np.ndarray,
+                   claim_hi: np.ndarray, vx: np.ndarray, v0: np.ndarray, s0: np.ndarray, headway: np.ndarray,
+                   b_comf: np.ndarray, switch_margin: np.ndarray, room_l: np.ndarray, room_r: np.ndarray,
+                   is_ego: np.ndarray, ignore_ego: bool, kerb_bias: np.ndarray, cut_in: np.ndarray, ego_y: float,
+                   ego_hy: float, half_width: float, edge_gap: float, min_gap_lat: float) -> np.ndarray:
     """New lateral targets (R,) m of the deciding vehicles `rows` (R,).
 
     Candidates: the grid (C,) m, where one is, one's current target. An offset may be taken when the box stays
     edge_gap m inside the carriageway (half_width m) and the move fits the lateral room (room_l, room_r (n,) m,
     less min_gap_lat m); staying put is always allowed when stay_allowed (no lane discipline), and the current
-    target while it stays inside. State arrays (n,) in SI units (`TrafficState` fields; hx, hy half extents,
-    claims from `lateral_claims`). kerb_bias (R,) m/s per carriageway width that slow vehicles lose away from
-    the kerb (+half_width); cut_in (R,) bool: rows that get CUT_IN_BONUS in the band of the ego (at ego_y m,
-    half width ego_hy m). Leaders are searched within LOOKAHEAD, with half min_gap_lat as the band margin.
+    target while it stays inside. order (n,) int: the rows sorted by x. State arrays (n,) in SI units
+    (`TrafficState` fields; hx, hy half extents, claims from `lateral_claims`). kerb_bias (R,) m/s per
+    carriageway width that slow vehicles lose away from the kerb (+half_width); cut_in (R,) bool: rows that get
+    CUT_IN_BONUS in the band of the ego (at ego_y m, half width ego_hy m). Leaders are searched within LOOKAHEAD,
+    with half min_gap_lat as the band margin.
     """
     r_n, c_n = rows.size, grid.size + 2
     cand = np.empty((r_n, c_n))
@@ -58,15 +59,16 @@ def choose_offsets(rows: np.ndarray, grid: np.ndarray, stay_allowed: bool, x: np
     edge = half_width - edge_gap
     for r in range(r_n):
         i = rows[r]
-        cand[r, :-2] = grid
-        cand[r, -2], cand[r, -1] = y[i], y_target[i]
+        for c in range(c_n - 2):
+            cand[r, c] = grid[c]
+        cand[r, c_n - 2], cand[r, c_n - 1] = y[i], y_target[i]
         up, down = room_l[i] - min_gap_lat, -(room_r[i] - min_gap_lat)
         for c in range(c_n):
             shift = cand[r, c] - y[i]
             ok[r, c] = abs(cand[r, c]) + hy[i] <= edge and shift <= up and shift >= down
-        ok[r, -2] = stay_allowed
-        ok[r, -1] = abs(cand[r, -1]) + hy[i] <= edge
-    gap, v_lead = band_leaders(rows, cand, ok, x, hx, hy, claim_lo, claim_hi, vx, is_ego, ignore_ego,
+        ok[r, c_n - 2] = stay_allowed
+        ok[r, c_n - 1] = abs(cand[r, c_n - 1]) + hy[i] <= edge
+    gap, v_lead = band_leaders(order, rows, cand, ok, x, hx, hy, claim_lo, claim_hi, vx, is_ego, ignore_ego,
                                0.5 * min_gap_lat, LOOKAHEAD)
     kerb_scale = max(abs(half_width) * 2, 1e-6)
     out = np.empty(r_n)

@@ -17,21 +17,20 @@ from numba import njit
 
 
 @njit(cache=True)
-def leaders(x: np.ndarray, y: np.ndarray, hx: np.ndarray, hy: np.ndarray, claim_lo: np.ndarray,
+def leaders(order: np.ndarray, x: np.ndarray, y: np.ndarray, hx: np.ndarray, hy: np.ndarray, claim_lo: np.ndarray,
             claim_hi: np.ndarray, is_ego: np.ndarray, ignore_ego: bool, margin: float) -> tuple[np.ndarray, np.ndarray]:
     """Lane-free leader of every agent: nearest agent ahead whose box comes within `margin` (m) of one's width band,
     or whose lateral claim (claim_lo, claim_hi) (n,) m overlaps that band with room ahead.
 
-    x, y, hx, hy (n,) m: centres and half extents of the axis-aligned boxes; is_ego (n,) bool.
-    Returns leader (n,) int row (0 where none) and gap (n,) bumper gap in m (inf where none; at least
-    0.01 where the boxes already overlap).
+    order (n,) int: the rows sorted by x (`np.argsort(x)`; ties in any order); x, y, hx, hy (n,) m: centres and
+    half extents of the axis-aligned boxes; is_ego (n,) bool. Returns leader (n,) int row (0 where none) and
+    gap (n,) bumper gap in m (inf where none; at least 0.01 where the boxes already overlap).
     """
     n = x.size
     leader = np.zeros(n, np.intp)
     best = np.full(n, np.inf)
     if n == 0:
         return leader, best
-    order = np.argsort(x)
     hx_max = hx.max()
     for p in range(n):
         i = order[p]
@@ -58,15 +57,15 @@ def leaders(x: np.ndarray, y: np.ndarray, hx: np.ndarray, hy: np.ndarray, claim_
 
 
 @njit(cache=True)
-def band_leaders(rows: np.ndarray, cand_y: np.ndarray, want: np.ndarray, x: np.ndarray, hx: np.ndarray,
-                 hy: np.ndarray, claim_lo: np.ndarray, claim_hi: np.ndarray, vx: np.ndarray, is_ego: np.ndarray,
-                 ignore_ego: bool, margin: float, horizon: float) -> tuple[np.ndarray, np.ndarray]:
+def band_leaders(order: np.ndarray, rows: np.ndarray, cand_y: np.ndarray, want: np.ndarray, x: np.ndarray,
+                 hx: np.ndarray, hy: np.ndarray, claim_lo: np.ndarray, claim_hi: np.ndarray, vx: np.ndarray,
+                 is_ego: np.ndarray, ignore_ego: bool, margin: float, horizon: float) -> tuple[np.ndarray, np.ndarray]:
     """Gap ahead and leader speed of deciding agents `rows` (R,) at each candidate lateral offset cand_y (R, C) m.
 
     A leader is an agent ahead (x_j > x_i) whose claim overlaps the offset's band (the agent's half width hy
     plus `margin` m each side). Only offsets where want (R, C) is True are looked at, and only leaders within
-    `horizon` m (bumper gap, floored at 0): the others come back as free road. Other arrays (n,) as in
-    `leaders`; vx m/s. Returns gap (R, C) m (inf: free) and lead speed (R, C) m/s (inf: free).
+    `horizon` m (bumper gap, floored at 0): the others come back as free road. order and the other arrays (n,)
+    as in `leaders`; vx m/s. Returns gap (R, C) m (inf: free) and lead speed (R, C) m/s (inf: free).
     """
     r_n, c_n = cand_y.shape
     gap = np.full((r_n, c_n), np.inf)
@@ -74,9 +73,9 @@ def band_leaders(rows: np.ndarray, cand_y: np.ndarray, want: np.ndarray, x: np.n
     n = x.size
     if n == 0:
         return gap, v_lead
-    order = np.argsort(x)
-    rank = np.empty(n, np.intp)
-    rank[order] = np.arange(n)
+    rank = np.empty(n, np.intp)  # position of each row in x order
+    for p in range(n):
+        rank[order[p]] = p
     hx_max = hx.max()
     near = np.empty(n, np.intp)  # one row's leader candidates, in x order
     near_g = np.empty(n)

@@ -14,11 +14,12 @@ from numba import njit
 
 
 @njit(cache=True)
-def lateral_room(x: np.ndarray, y: np.ndarray, hx: np.ndarray, hy: np.ndarray, vx: np.ndarray, s0: np.ndarray,
-                 is_ego: np.ndarray, ignore_ego: bool, ego_gap: float) -> tuple[np.ndarray, np.ndarray]:
+def lateral_room(order: np.ndarray, x: np.ndarray, y: np.ndarray, hx: np.ndarray, hy: np.ndarray, vx: np.ndarray,
+                 s0: np.ndarray, is_ego: np.ndarray, ignore_ego: bool, ego_gap: float) -> tuple[np.ndarray, np.ndarray]:
     """Free lateral distance (n,) m to the nearest box in the side window on the left (+y) and on the right.
 
-    x, y, hx, hy (n,) m: centres and half extents of the axis-aligned boxes; vx (n,) m/s; s0 (n,) m standstill
+    order (n,) int: the rows sorted by x (`np.argsort(x)`; ties in any order); x, y, hx, hy (n,) m: centres and
+    half extents of the axis-aligned boxes; vx (n,) m/s; s0 (n,) m standstill
     gaps; is_ego (n,) bool. ignore_ego: a background agent's window holds the ego only while their bumper gap is
     below ego_gap m (the `ignore` reaction: -inf, never; `cut_in`: the lateral minimum gap, side by side only).
     Boxes that overlap one's own band (lateral gap below -1e-9 m) are ahead or behind, not beside, and do not
@@ -29,7 +30,6 @@ def lateral_room(x: np.ndarray, y: np.ndarray, hx: np.ndarray, hy: np.ndarray, v
     right = np.full(n, np.inf)
     if n == 0:
         return left, right
-    order = np.argsort(x)
     hx_max = hx.max()
     follower = 0.5 * s0 + 0.5 * vx  # (n,) the follower's own part of the margin
     # No margin exceeds this (rounding is monotone): the scan along x stops where every gap is at least it.

@@ -267,6 +267,7 @@ class Traffic:
         heading = s.headings()
         hx, hy = dyn.half_extents(s.length, s.width, heading)
         ignore_lon, ignore_lat = self._ignores_ego(s)
+        order = np.argsort(s.x)  # the pair searches scan along x
 
         ped = np.flatnonzero(s.kind == CROSSING)
         walking_now = np.zeros(n, bool)
@@ -276,7 +277,7 @@ class Traffic:
         lo, hi = dyn.lateral_claims(s, hy, walking_now)
 
         # Longitudinal: IDM on the lane-free leader, then a hard clamp that keeps every gap open.
-        leader, gap = leaders(s.x, s.y, hx, hy, lo, hi, s.is_ego, ignore_lon, 0.5 * self.min_gap_lat)
+        leader, gap = leaders(order, s.x, s.y, hx, hy, lo, hi, s.is_ego, ignore_lon, 0.5 * self.min_gap_lat)
         acc = dyn.idm_acceleration(s.vx, s.v0, s.a_max, s.b_comf, s.headway, s.s0, gap, s.vx[leader])
         if any_commanded:
             a_ego = float(np.clip(ego_command[0], -B_EGO, PARAMS["a_max"][s.agent_type[commanded][0]]))
@@ -292,8 +293,8 @@ class Traffic:
 
         # Lateral: targets chosen by the agents, speeds limited by the room beside them.
         ego_gap = self.min_gap_lat if self.ego_reaction == "cut_in" else -np.inf  # cut_in: side by side only
-        room_l, room_r = lateral_room(s.x, s.y, hx, hy, s.vx, s.s0, s.is_ego, ignore_lat, ego_gap)
-        self._decide_targets(s, hx, hy, lo, hi, ignore_lon, room_l, room_r, fixed, dt)
+        room_l, room_r = lateral_room(order, s.x, s.y, hx, hy, s.vx, s.s0, s.is_ego, ignore_lat, ego_gap)
+        self._decide_targets(s, order, hx, hy, lo, hi, ignore_lon, room_l, room_r, fixed, dt)
         speed_share = dyn.clip(s.vx / 4.0, 0.0, 1.0)  # no sideways motion without forward speed
         vy_lim = s.vy_max * speed_share
         vy_des = dyn.clip(dyn.LAT_GAIN * (s.y_target - s.y), -vy_lim, vy_lim)
@@ -328,8 +329,8 @@ class Traffic:
         s.vy = move / dt
         return events
 
-    def _decide_targets(self, s: TrafficState, hx: np.ndarray, hy: np.ndarray, lo: np.ndarray, hi: np.ndarray,
-                        ignore_ego: bool, room_l: np.ndarray, room_r: np.ndarray, commanded: np.ndarray,
+    def _decide_targets(self, s: TrafficState, order: np.ndarray, hx: np.ndarray, hy: np.ndarray, lo: np.ndarray,
+                        hi: np.ndarray, ignore_ego: bool, room_l: np.ndarray, room_r: np.ndarray, commanded: np.ndarray,
                         dt: float) -> None:
         """Re-choose the lateral target of a rotating share of the vehicles (each every decision_period)."""
         every = max(1, int(round(float(self.config["decision_period"]) / dt)))
@@ -339,8 +340,8 @@ class Traffic:
         kerb_bias = np.where(s.v0[rows] < 0.6 * self.speed_limit, 1.5, 0.0)  # slow vehicles keep to the kerb
         cut_in, ego_y, ego_hy = self._cut_in_rows(s, rows, hy)
         s.y_target[rows] = choose_offsets(
-            rows, self._grid(), self.lane_centres is None, s.x, s.y, s.y_target, hx, hy, lo, hi, s.vx, s.v0, s.s0,
-            s.headway, s.b_comf, s.switch_margin, room_l, room_r, s.is_ego, ignore_ego, kerb_bias, cut_in, ego_y,
+            order, rows, self._grid(), self.lane_centres is None, s.x, s.y, s.y_target, hx, hy, lo, hi, s.vx, s.v0,
+            s.s0, s.headway, s.b_comf, s.switch_margin, room_l, room_r, s.is_ego, ignore_ego, kerb_bias, cut_in, ego_y,
             ego_hy, self.half_width, EDGE_GAP, self.min_gap_lat)
 
     def _cut_in_rows(self, s: TrafficState, rows: np.ndarray, hy: np.ndarray) -> tuple[np.ndarray, float, float]:
