@@ -8,7 +8,10 @@ the share `raw time / env time` says what the env layer costs. Rates are per CPU
 plus the env's SUMO worker: a shared machine's load does not count; wall-clock rates are in the JSON),
 and the loops run interleaved in chunks so the rest of a busy machine affects them alike. Also the env
 with ``episodes_per_warmup = 1`` (every reset warms the traffic up from empty, as before warm resets), and
-the env loop's share of CPU spent in reset() with the step-only rate and share (resets left out).
+the env loop's share of CPU spent in reset() with the step-only rate and share (resets left out), and what
+the env layer proper costs on top of its own simulator: step() CPU beyond the simulator's step() inside it
+(observation, reward, ego safety, gym wrappers; the simulator under a random, weaving ego works harder than
+in the raw loop's cruise, which this leaves out).
 
 Usage: python bench/envs.py [--steps 1000] [--rounds 5] [--env ID] [--old REV]
   --old REV  also measure the env of git revision REV (checked out into a temporary worktree, run in a
@@ -45,11 +48,31 @@ class EnvLoop:
         self.env.reset(seed=seed)
         self.resets = 0
         self.reset_cpu = 0.0  # CPU seconds spent in reset() (warm-ups, the ego's history), within run()
+        self.sim_cpu = 0.0  # CPU seconds spent in the simulator's step() within the env's step(), within run()
+        self._in_step = False
+        sim = self.env.unwrapped._sim
+        sim_step = sim.step
+
+        def timed_step(*args: object, **kwargs: object) -> object:
+            if not self._in_step:
+                return sim_step(*args, **kwargs)
+            c = cpu_seconds(self.env)
+            try:
+                return sim_step(*args, **kwargs)
+            finally:
+                self.sim_cpu += cpu_seconds(self.env) - c
+
+        sim.step = timed_step
 
     def run(self, n: int) -> tuple[float, float]:
         w0, c0 = time.perf_counter(), cpu_seconds(self.env)
         for _ in range(n):
-            _, _, term, trunc, _ = self.env.step(self.env.action_space.sample())
+            action = self.env.action_space.sample()
+            self._in_step = True
+            try:
+                _, _, term, trunc, _ = self.env.step(action)
+            finally:
+                self._in_step = False
             if term or trunc:
                 r0 = cpu_seconds(self.env)
                 self.env.reset()
@@ -119,6 +142,8 @@ def measure(steps: int, rounds: int, env_ids: tuple[str, ...] = ENVS, variants: 
             # step() alone (resets left out): what the env layer costs on top of the simulator per step
             rec[f"{k}_step_only_per_s"] = n / (cpu[k] - loops[k].reset_cpu)
             rec[f"{k}_step_only_share_of_raw"] = cpu["raw"] / (cpu[k] - loops[k].reset_cpu)
+            # the env layer proper: step() time beyond its own simulator steps (observation, reward, safety, ...)
+            rec[f"{k}_layer_on_top_of_sim"] = (cpu[k] - loops[k].reset_cpu) / loops[k].sim_cpu - 1.0
         out[env_id] = rec
         raw.sim.close()
         for loop in loops.values():
@@ -156,11 +181,12 @@ def main() -> None:
     res = measure(a.steps, a.rounds, ids)
     old = measure_old(a.old, a.steps) if a.old else {}
     print(f"{'env':16s} {'raw fr/s':>9s} {'env st/s':>9s} {'share':>6s} {'in reset':>8s} {'step-only st/s':>15s} "
-          f"{'share':>6s} {'cold-reset st/s':>16s} {'share':>6s}" + (f" {'old st/s':>9s}" if old else ""))
+          f"{'share':>6s} {'layer on sim':>12s} {'cold-reset st/s':>16s} {'share':>6s}"
+          + (f" {'old st/s':>9s}" if old else ""))
     for k, r in res.items():
         line = (f"{k:16s} {r['raw_frames_per_s']:9.0f} {r['env_steps_per_s']:9.0f} {r['env_share_of_raw']:6.0%} "
                 f"{r['env_reset_cpu_share']:8.0%} {r['env_step_only_per_s']:15.0f} "
-                f"{r['env_step_only_share_of_raw']:6.0%} "
+                f"{r['env_step_only_share_of_raw']:6.0%} {r['env_layer_on_top_of_sim']:12.0%} "
                 f"{r['env_cold_resets_steps_per_s']:16.0f} {r['env_cold_resets_share_of_raw']:6.0%}")
         if old:
             line += f" {old.get(k, float('nan')):9.0f}"

@@ -27,11 +27,11 @@ _ONEHOT = np.eye(len(AgentType), dtype=np.float32)
 
 @dataclass(frozen=True)
 class _Indexed:
-    """A frame with its ids sorted once, for matching agents across frames."""
+    """A frame with its ids sorted once, for matching agents across frames, and their states in that order."""
 
     frame: Frame
-    order: np.ndarray  # (n,) argsort of agent_id
-    sorted_ids: np.ndarray  # (n,) agent_id[order]
+    sorted_ids: np.ndarray  # (n,) agent_id, sorted
+    states: np.ndarray  # (n, 4) float64 x, y (m), heading (rad), speed (m/s), in sorted_ids order
 
 
 class History:
@@ -45,7 +45,8 @@ class History:
 
     def append(self, frame: Frame) -> None:
         order = np.argsort(frame.agent_id, kind="stable")
-        self._items.append(_Indexed(frame, order, frame.agent_id[order]))
+        states = np.column_stack([frame.xy, frame.heading, frame.speed])[order].astype(np.float64)
+        self._items.append(_Indexed(frame, frame.agent_id[order], states))
 
     @property
     def frames(self) -> list[Frame]:
@@ -62,22 +63,20 @@ class History:
         """Positions of agents `ids` (m,) over the held frames: xy (m, T, 2) m, heading (m, T) rad,
         speed (m, T) m/s and present (m, T) bool (zeros where absent)."""
         m, t = len(ids), len(self._items)
-        xy = np.zeros((m, t, 2))
-        heading, speed = np.zeros((m, t)), np.zeros((m, t))
+        states = np.zeros((m, t, 4))
         present = np.zeros((m, t), bool)
+        at = np.zeros((m, t), np.intp)  # row of each (agent, frame) in the frames' states stacked
+        start = 0
         for j, item in enumerate(self._items):  # H frames, each one vectorised lookup
             n = len(item.sorted_ids)
-            if n == 0 or m == 0:
-                continue
-            pos = np.minimum(np.searchsorted(item.sorted_ids, ids), n - 1)
-            hit = item.sorted_ids[pos] == ids
-            idx = item.order[pos]
-            f = item.frame
-            xy[:, j] = np.where(hit[:, None], f.xy[idx], 0.0)
-            heading[:, j] = np.where(hit, f.heading[idx], 0.0)
-            speed[:, j] = np.where(hit, f.speed[idx], 0.0)
-            present[:, j] = hit
-        return xy, heading, speed, present
+            if n and m:
+                pos = np.minimum(np.searchsorted(item.sorted_ids, ids), n - 1)
+                present[:, j] = item.sorted_ids[pos] == ids
+                at[:, j] = pos + start
+            start += n
+        if start and m:
+            states = np.where(present[..., None], np.concatenate([i.states for i in self._items])[at], 0.0)
+        return states[..., :2], states[..., 2], states[..., 3], present
 
 
 def nearest(frame: Frame, k: int, obs_range: float) -> np.ndarray:
@@ -113,10 +112,11 @@ def agents_observation(history: History, k: int, h: int, obs_range: float) -> tu
     feats[..., 0] = 1.0
     feats[..., 1:3] = (xy - p0) @ rot.T / obs_range
     dh = heading - h0
-    feats[..., 3] = speed * np.cos(dh) / SPEED_SCALE  # velocity in the ego frame: rotate by -h0
-    feats[..., 4] = speed * np.sin(dh) / SPEED_SCALE
-    feats[..., 5] = np.cos(dh)
-    feats[..., 6] = np.sin(dh)
+    cos_dh, sin_dh = np.cos(dh), np.sin(dh)
+    feats[..., 3] = speed * cos_dh / SPEED_SCALE  # velocity in the ego frame: rotate by -h0
+    feats[..., 4] = speed * sin_dh / SPEED_SCALE
+    feats[..., 5] = cos_dh
+    feats[..., 6] = sin_dh
     feats[..., 7] = (frame.length[rows] / LENGTH_SCALE)[:, None]
     feats[..., 8] = (frame.width[rows] / WIDTH_SCALE)[:, None]
     feats[..., 9:] = _ONEHOT[frame.agent_type[rows]][:, None]

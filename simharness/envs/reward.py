@@ -15,9 +15,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from simharness.metrics.collisions import boxes_overlap
+from simharness.envs.ttc import min_ttc
+from simharness.metrics.separating_axis import gaps
 from simharness.sim.base import Frame
-from simharness.sim.highway_dynamics import may_overlap
 
 TTC_HORIZON = 3.0  # s
 TTC_STEP = 0.1  # s between sampled times
@@ -60,19 +60,10 @@ def ego_gaps(xy: np.ndarray, heading: np.ndarray, length: np.ndarray, width: np.
     """`safety.min_gap` of the ego (row e) to the agents `rows` (P,) at one frame: (P,) float32 m, the same
     floats, computed per axis component instead of through its (P, 4, 2) stacks and einsums (a tenth of
     the calls). xy (n, 2) m, heading (n,) rad, length, width (n,) m, all float64."""
-    ha, hb = heading[rows], np.full(rows.size, heading[e])
-    rel = xy[e] - xy[rows]  # (P, 2) ego centre from each agent
-    axes = [(np.cos(h), np.sin(h)) for h in (ha, ha + np.pi / 2, hb, hb + np.pi / 2)]
-    fa, fb = (np.cos(ha), np.sin(ha)), (np.cos(hb), np.sin(hb))  # forward; left is (-sin, cos)
-    la, wa = length[rows] / 2, width[rows] / 2
-    lb, wb = np.full(rows.size, length[e]) / 2, np.full(rows.size, width[e]) / 2
-    sep = None
-    for ax, ay in axes:
-        s = (np.abs(ax * rel[:, 0] + ay * rel[:, 1])
-             - (np.abs(ax * fa[0] + ay * fa[1]) * la + np.abs(ax * -fa[1] + ay * fa[0]) * wa)
-             - (np.abs(ax * fb[0] + ay * fb[1]) * lb + np.abs(ax * -fb[1] + ay * fb[0]) * wb))
-        sep = s if sep is None else np.maximum(sep, s)
-    return np.maximum(sep, 0.0).astype(np.float32)
+    h = np.concatenate([heading, heading + np.pi / 2])  # the axes: each box's forward and left directions
+    c, s = np.cos(h), np.sin(h)
+    n = heading.size
+    return gaps(xy[e] - xy[rows], c[:n], s[:n], c[n:], s[n:], length, width, e, rows)
 
 
 def _min_ttc(frame: Frame, xy: np.ndarray, heading: np.ndarray, length: np.ndarray, width: np.ndarray,
@@ -80,32 +71,9 @@ def _min_ttc(frame: Frame, xy: np.ndarray, heading: np.ndarray, length: np.ndarr
     """First sampled time (s) the ego's box overlaps another's under constant velocity; TTC_CAP if none."""
     e = frame.ego
     speed = frame.speed.astype(np.float64)
-    vel = speed[:, None] * np.stack([np.cos(heading), np.sin(heading)], -1)
-    dv = vel - vel[e]
-    # |rel + dv tau| <= reach  <=>  a tau^2 + 2 b tau + c <= 0
-    a, b, c = (dv ** 2).sum(-1), (rel * dv).sum(-1), d ** 2 - reach ** 2
-    disc = b ** 2 - a * c
-    ok = (disc >= 0) & ((c <= 0) | (a > 0))
-    ok[e] = False
-    root = np.sqrt(np.maximum(disc, 0.0))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        lo = np.where(c <= 0, 0.0, (-b - root) / a)
-        hi = np.where(a > 0, (-b + root) / a, np.inf)
-    ok &= (hi >= 0) & (lo <= TTC_HORIZON)
-    rows = np.flatnonzero(ok)
-    if rows.size == 0:
-        return TTC_CAP
-    window = (_TAUS[None] >= lo[rows, None] - 1e-6) & (_TAUS[None] <= hi[rows, None] + 1e-6)  # (P, K)
-    p, k = np.nonzero(window)
-    r, tau = rows[p], _TAUS[k]
-    pa, pe = xy[r] + vel[r] * tau[:, None], xy[e] + vel[e] * tau[:, None]
-    keep = np.flatnonzero(may_overlap(pa - pe, heading[r], length[r], width[r], heading[e], length[e], width[e]))
-    if keep.size == 0:
-        return TTC_CAP
-    r, tau = r[keep], tau[keep]
-    hit = boxes_overlap(pa[keep], heading[r], length[r], width[r], pe[keep], np.full(r.size, heading[e]),
-                        np.full(r.size, length[e]), np.full(r.size, width[e]))
-    return float(tau[hit].min()) if hit.any() else TTC_CAP
+    cos_h, sin_h = np.cos(heading), np.sin(heading)
+    vel = speed[:, None] * np.stack([cos_h, sin_h], -1)
+    return float(min_ttc(xy, rel, d, reach, vel, cos_h, sin_h, length, width, e, _TAUS, TTC_HORIZON, TTC_CAP))
 
 
 def step_reward(weights: dict[str, float], moved: float, new_contact: bool, accel: float, prev_accel: float,

@@ -18,13 +18,16 @@ import numpy as np
 from simharness.scene import AgentType
 from simharness.sim import highway_dynamics as dyn
 from simharness.sim.highway_agents import PARAMS
+from simharness.sim.highway_crossing import crossing_clear
+from simharness.sim.highway_decision import choose_offsets
 from simharness.sim.highway_dynamics import CROSSING, VEHICLE, WALKING, TrafficState
 from simharness.sim.highway_events import EventScript
+from simharness.sim.highway_leaders import leaders
+from simharness.sim.highway_room import lateral_room
 
 EDGE_GAP = 0.2  # m kept between a vehicle and the carriageway edge
 PED_SPACING = 1.5  # m along the road between two crossing pedestrians at their start
 CUT_IN_RANGE = 10.0  # m ahead of the ego's front within which background agents cut in (cut_in setting)
-CUT_IN_BONUS = 3.0  # m/s of score for taking the band in front of the ego (cut_in setting)
 QUEUE_MAX = 200  # arrivals waiting for room; beyond this new arrivals are dropped (and counted)
 
 
@@ -247,18 +250,11 @@ class Traffic:
         self.steps += 1
         return events
 
-    def _sees(self, s: TrafficState) -> tuple[np.ndarray | None, np.ndarray | None]:
-        """(n, n) whom each agent takes into account, longitudinally and laterally (ego reaction applied);
-        None where everyone sees everyone else (no (n, n) mask to build or apply)."""
-        ego = np.flatnonzero(s.is_ego)
-        if not ego.size or self.ego_reaction not in ("ignore", "cut_in"):
-            return None, None
-        bg = ~s.is_ego
-        lat = ~np.eye(s.n, dtype=bool)
-        lat[np.ix_(bg, ego)] = False  # cut_in: re-added in _move for side-by-side only
-        if self.ego_reaction == "cut_in":
-            return None, lat
-        return lat, lat
+    def _ignores_ego(self, s: TrafficState) -> tuple[bool, bool]:
+        """Whether background agents leave the ego out of their leader search and out of their side windows."""
+        if self.ego_reaction not in ("ignore", "cut_in") or not s.is_ego.any():
+            return False, False
+        return self.ego_reaction == "ignore", True
 
     def _move(self, s: TrafficState, dt: float, ego_command: tuple[float, float] | None,
               script: tuple[np.ndarray, np.ndarray] | None = None) -> list[tuple[str, str]]:
@@ -270,18 +266,18 @@ class Traffic:
         any_commanded, any_scripted = bool(commanded.any()), bool(scripted.any())
         heading = s.headings()
         hx, hy = dyn.half_extents(s.length, s.width, heading)
-        pw = dyn.pairwise(s.x, s.y, hx, hy)
-        sees, sees_lat = self._sees(s)
+        ignore_lon, ignore_lat = self._ignores_ego(s)
+        order = np.argsort(s.x)  # the pair searches scan along x
 
         ped = np.flatnonzero(s.kind == CROSSING)
         walking_now = np.zeros(n, bool)
         if ped.size:
-            walking_now[ped] = dyn.crossing_clear(ped, s, hx, hy, None if sees is None else sees[ped],
-                                                    self.half_width)
+            walking_now[ped] = crossing_clear(ped, s.x, s.y, hx, hy, s.vx, s.v0, s.s0, s.b_comf, s.cross_dir,
+                                              s.kind == CROSSING, s.is_ego, ignore_lon, self.half_width)
         lo, hi = dyn.lateral_claims(s, hy, walking_now)
 
         # Longitudinal: IDM on the lane-free leader, then a hard clamp that keeps every gap open.
-        leader, gap = dyn.find_leaders(pw, s.y, hy, lo, hi, sees, 0.5 * self.min_gap_lat)
+        leader, gap = leaders(order, s.x, s.y, hx, hy, lo, hi, s.is_ego, ignore_lon, 0.5 * self.min_gap_lat)
         acc = dyn.idm_acceleration(s.vx, s.v0, s.a_max, s.b_comf, s.headway, s.s0, gap, s.vx[leader])
         if any_commanded:
             a_ego = float(np.clip(ego_command[0], -B_EGO, PARAMS["a_max"][s.agent_type[commanded][0]]))
@@ -296,11 +292,9 @@ class Traffic:
         self.emergency_stops += int(hard.sum())
 
         # Lateral: targets chosen by the agents, speeds limited by the room beside them.
-        window = dyn.side_windows(pw, s.vx, s.s0, sees_lat)
-        if self.ego_reaction == "cut_in" and s.is_ego.any():
-            window |= (~s.is_ego)[:, None] & s.is_ego[None, :] & (pw.gap < self.min_gap_lat)
-        room_l, room_r = dyn.lateral_room(pw, window)
-        self._decide_targets(s, pw, hy, lo, hi, sees, room_l, room_r, fixed, dt)
+        ego_gap = self.min_gap_lat if self.ego_reaction == "cut_in" else -np.inf  # cut_in: side by side only
+        room_l, room_r = lateral_room(order, s.x, s.y, hx, hy, s.vx, s.s0, s.is_ego, ignore_lat, ego_gap)
+        self._decide_targets(s, order, hx, hy, lo, hi, ignore_lon, room_l, room_r, fixed, dt)
         speed_share = dyn.clip(s.vx / 4.0, 0.0, 1.0)  # no sideways motion without forward speed
         vy_lim = s.vy_max * speed_share
         vy_des = dyn.clip(dyn.LAT_GAIN * (s.y_target - s.y), -vy_lim, vy_lim)
@@ -335,52 +329,30 @@ class Traffic:
         s.vy = move / dt
         return events
 
-    def _decide_targets(self, s: TrafficState, pw: dyn.Pairwise, hy: np.ndarray, lo: np.ndarray, hi: np.ndarray,
-                        sees: np.ndarray | None, room_l: np.ndarray, room_r: np.ndarray, commanded: np.ndarray,
+    def _decide_targets(self, s: TrafficState, order: np.ndarray, hx: np.ndarray, hy: np.ndarray, lo: np.ndarray,
+                        hi: np.ndarray, ignore_ego: bool, room_l: np.ndarray, room_r: np.ndarray, commanded: np.ndarray,
                         dt: float) -> None:
         """Re-choose the lateral target of a rotating share of the vehicles (each every decision_period)."""
         every = max(1, int(round(float(self.config["decision_period"]) / dt)))
         rows = np.flatnonzero((s.kind == VEHICLE) & ~commanded & (s.uid % every == self.steps % every))
         if rows.size == 0:
             return
-        grid = self._grid()
-        cand = np.empty((rows.size, grid.size + 2))  # (R, C + 2): the grid, where one is, one's current target
-        cand[:, :-2], cand[:, -2], cand[:, -1] = grid, s.y[rows], s.y_target[rows]
-        inside = np.abs(cand) + hy[rows, None] <= self.half_width - EDGE_GAP
-        shift = cand - s.y[rows, None]
-        reach = (shift <= room_l[rows, None] - self.min_gap_lat) & (shift >= -(room_r[rows, None] - self.min_gap_lat))
-        ok = inside & reach
-        ok[:, -2] = self.lane_centres is None  # staying put is always allowed without lane discipline
-        ok[:, -1] = inside[:, -1]  # the current plan stays valid while blocked
-        ahead = pw.dx[rows] > 0
-        if sees is not None:
-            ahead &= sees[rows]
-        # Only offsets it may take are scored (the rest score -inf whatever their gap), and leaders beyond
-        # LOOKAHEAD do not change a score (free road either way): neither is looked for.
-        gap, v_lead = dyn.band_gaps(pw.gap[rows], cand, hy[rows], lo, hi, ahead, s.vx, 0.5 * self.min_gap_lat,
-                                    horizon=dyn.LOOKAHEAD, want=ok)
-        slow = s.v0[rows] < 0.6 * self.speed_limit
-        scores = dyn.offset_scores(gap, v_lead, s.vx[rows], s.v0[rows], s.s0[rows], s.headway[rows], s.b_comf[rows],
-                                   cand, s.y[rows], np.where(slow, 1.5, 0.0), self.half_width)
-        scores += self._cut_in_bonus(s, rows, cand, hy)
-        scores = np.where(ok, scores, -np.inf)
-        best = np.argmax(scores, axis=1)
-        top, plan = scores[np.arange(rows.size), best], scores[:, -1]
-        gain = np.where(np.isfinite(plan), top - np.where(np.isfinite(plan), plan, 0.0), np.inf)
-        gain = np.where(np.isfinite(top), gain, -np.inf)  # nowhere safe: keep the plan
-        switch = gain > s.switch_margin[rows]
-        s.y_target[rows] = np.where(switch, cand[np.arange(rows.size), best], s.y_target[rows])
+        kerb_bias = np.where(s.v0[rows] < 0.6 * self.speed_limit, 1.5, 0.0)  # slow vehicles keep to the kerb
+        cut_in, ego_y, ego_hy = self._cut_in_rows(s, rows, hy)
+        s.y_target[rows] = choose_offsets(
+            order, rows, self._grid(), self.lane_centres is None, s.x, s.y, s.y_target, hx, hy, lo, hi, s.vx, s.v0,
+            s.s0, s.headway, s.b_comf, s.switch_margin, room_l, room_r, s.is_ego, ignore_ego, kerb_bias, cut_in, ego_y,
+            ego_hy, self.half_width, EDGE_GAP, self.min_gap_lat)
 
-    def _cut_in_bonus(self, s: TrafficState, rows: np.ndarray, cand: np.ndarray, hy: np.ndarray) -> np.ndarray:
-        """(R, C) m/s added, in the cut_in setting, to offsets in front of the ego for agents just ahead of it:
-        they merge into its band the way a driver who has just overtaken does, without yielding to it."""
+    def _cut_in_rows(self, s: TrafficState, rows: np.ndarray, hy: np.ndarray) -> tuple[np.ndarray, float, float]:
+        """Which deciding rows (R,) bool get the cut-in bonus in the ego's band, and that band (centre, half width
+        m): in the cut_in setting, agents just ahead of the ego merge into its band the way a driver who has just
+        overtaken does, without yielding to it."""
         e = self.ego_row
         if self.ego_reaction != "cut_in" or e < 0:
-            return np.zeros(cand.shape)
+            return np.zeros(rows.size, bool), 0.0, 0.0
         lead = (s.x[rows] - 0.5 * s.length[rows]) - (s.x[e] + 0.5 * s.length[e])
-        near = (lead > 0) & (lead < CUT_IN_RANGE) & ~s.is_ego[rows]
-        in_band = np.abs(cand - s.y[e]) < hy[rows, None] + hy[e]
-        return np.where(near[:, None] & in_band, CUT_IN_BONUS, 0.0)
+        return (lead > 0) & (lead < CUT_IN_RANGE) & ~s.is_ego[rows], float(s.y[e]), float(hy[e])
 
     def _remove_departed(self) -> None:
         s = self.state

@@ -25,9 +25,8 @@ from highway_env.envs.common.observation import ObservationType
 from highway_env.road.lane import LineType, StraightLane
 from highway_env.road.road import Road, RoadNetwork
 
-from simharness.metrics.collisions import boxes_overlap
+from simharness.metrics.separating_axis import overlaps_with
 from simharness.scene import AgentType
-from simharness.sim import highway_dynamics as dyn
 from simharness.sim.highway_agents import AGENT_CLASSES, PARAMS, HeteroAgent
 from simharness.sim.highway_events import EventScript
 from simharness.sim.highway_traffic import B_EGO, Traffic
@@ -263,15 +262,7 @@ class HeteroHighwayEnv(AbstractEnv):
         if near.size == 0:
             return []
         h = s.headings()
-        # The four-axis projection bound rules out most of them without the full separating-axis test.
-        near = near[dyn.may_overlap(np.stack([s.x[near] - s.x[e], s.y[near] - s.y[e]], -1), h[near], s.length[near],
-                                    s.width[near], h[e], s.length[e], s.width[e])]
-        if near.size == 0:
-            return []
-        m = near.size
-        hit = boxes_overlap(np.stack([s.x[near], s.y[near]], -1), h[near], s.length[near], s.width[near],
-                            np.tile([s.x[e], s.y[e]], (m, 1)), np.full(m, h[e]), np.full(m, s.length[e]),
-                            np.full(m, s.width[e]))
+        hit = overlaps_with(s.x, s.y, np.cos(h), np.sin(h), s.length, s.width, near, e)  # the separating-axis test
         return s.agent_id[near[hit]].tolist()
 
     def step(self, action: np.ndarray | None = None) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
