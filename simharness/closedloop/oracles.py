@@ -136,9 +136,10 @@ class Track:
 class _Rollout:
     """One branch rolled ahead from episode frame k: frames[i] is frame k + i, commands[i] the ego's there.
 
-    snaps: {i: simulator at frames[i]} every `snapshot_every` frames (resumed from, never stepped);
-    checkpoints: {i: ego state before driving frames[i]} as replanning over this branch's own track gives
-    it (the check starts at the latest); verified: the ego state before driving frame k + settled, once checked.
+    snaps: {i: simulator at frames[i]} every `snapshot_every` frames up to the settled one (resumed from, never
+    stepped); checkpoints: {i: ego state before driving frames[i]} every `checkpoint_every` frames, as replanning
+    over this branch's own track gives it (the check starts at the latest); verified: the ego state before driving
+    frame k + settled, once checked.
     """
 
     k: int
@@ -159,18 +160,20 @@ class BranchOracle:
 
     horizon: forecast frames; plan_frames: frames of the forecast the planner uses; radius: m (targets);
     window: frames each branch is rolled ahead; max_iterations: guess -> branch rounds per branch;
-    snapshot_every: frames between the branch snapshots that later rounds resume from.
+    snapshot_every: frames between the branch snapshots that later rounds resume from (up to the settled frame
+    only: no round resumes later); checkpoint_every: frames between the ego states that the check restarts from.
     `serve`: where the live planner is served degraded forecasts (`perturbations.Degrader`), the branches'
     egos are served the same (a copy of it, deterministic per frame and agent).
     `stats`: branches, iterations, cycles (no fixed point), unconverged, mismatches (see the module docstring).
     """
 
     def __init__(self, dt: float, horizon: int, plan_frames: int, radius: float, window: int,
-                 max_iterations: int = 4, snapshot_every: int = 5) -> None:
+                 max_iterations: int = 4, snapshot_every: int = 10, checkpoint_every: int = 5) -> None:
         self.dt, self.horizon, self.plan_frames, self.radius = dt, horizon, plan_frames, radius
         self.window = max(window, horizon + 2 * plan_frames + 1)
         self.max_iterations = max_iterations
         self.snapshot_every = max(1, snapshot_every)
+        self.checkpoint_every = max(1, checkpoint_every)
         self.serve: Any = None
         self.track: Track | None = None
         self.last: _Rollout | None = None
@@ -290,7 +293,10 @@ class BranchOracle:
         `guess`; snapshots every `snapshot_every` frames. A SUMO branch rolls the whole stretch in its worker."""
         start = len(roll.frames) - 1 if start is None else start
         drive = self._driver(roll.k, ego, guess, roll.commands[:replay_to])
-        at = [i for i in range(start, self.window) if i % self.snapshot_every == 0 and i not in roll.snaps]
+        # A round resumes at a frame before the settled one (a slide at it): later snapshots would go unused.
+        settled = self.window - 2 * self.plan_frames
+        at = [i for i in range(start, min(self.window, settled + 1)) if i % self.snapshot_every == 0
+              and i not in roll.snaps]
         if hasattr(sim, "rollout"):  # one message for the stretch, not one round trip per frame
             frames, commands, snaps = sim.rollout(drive, roll.frames[start], start, self.window, at)
             roll.snaps.update(snaps)
@@ -318,7 +324,7 @@ class BranchOracle:
         i0 = max(roll.checkpoints)
         planner, clock, serve = self._copy(roll.checkpoints[i0])
         for i in range(i0, settled):  # stops at the first command that differs
-            if i > i0 and i % self.snapshot_every == 0:
+            if i > i0 and i % self.checkpoint_every == 0:
                 roll.checkpoints[i] = self._copy((planner, clock, serve))
             command = _drive(roll.k + i, roll.k, roll.frames[i], (planner, clock, serve), track, self.dt,
                              self.horizon, self.radius)
