@@ -3,8 +3,9 @@
 Each episode runs in a fresh process (`python -c`, PYTHONPATH = the tree), the two trees alternating per
 episode and repeat (the machine's load shifts: compare within one run). Results must not change with a speed-up:
 every score that is not a timing (online errors, collisions, progress, oracle counters, ...) is compared
-exactly and any difference is printed. Speed: simulated seconds per wall second, loop only (warm-up excluded),
-and the wall ms per simulated second of simulator / predictor (the oracle's branches included) / planner.
+exactly and any difference is printed. Speed: simulated seconds per wall second, loop only (warm-up excluded), and
+the wall (with --cpu: CPU) ms per simulated second of simulator / predictor (the oracle's branches included) /
+planner.
 
     .venv/bin/python bench/closedloop_compare.py --baseline /work/main
     .venv/bin/python bench/closedloop_compare.py --baseline /work/main --egos oracle --seeds 0-2 --duration 20
@@ -27,7 +28,11 @@ _EPISODE = """
 import json, sys
 from simharness.closedloop import EpisodeJob, LoopConfig, prepare_spec, run_episode
 from simharness.scenario import load_scenario
-scenario, reaction, ego, seed, duration = sys.argv[1:6]
+scenario, reaction, ego, seed, duration, cpu = sys.argv[1:7]
+if cpu == "1":  # the loop's timers read this process's CPU time instead of the wall clock
+    import time, types
+    import simharness.closedloop.episode as episode
+    episode.time = types.SimpleNamespace(perf_counter=time.process_time)
 spec = prepare_spec(load_scenario(scenario), reaction).with_overrides({"duration": float(duration)})
 s = run_episode(EpisodeJob(spec, int(seed), ego, LoopConfig(), keep_scene=False))["scores"]
 print(json.dumps({k: v for k, v in s.items() if isinstance(v, (int, float, str, bool)) or v is None}))
@@ -35,9 +40,10 @@ print(json.dumps({k: v for k, v in s.items() if isinstance(v, (int, float, str, 
 TIMING = ("wall_s", "realtime_factor", "realtime_factor_with_warmup")
 
 
-def run(tree: Path, scenario: str, reaction: str, ego: str, seed: int, duration: float) -> dict:
+def run(tree: Path, scenario: str, reaction: str, ego: str, seed: int, duration: float, cpu: bool) -> dict:
     env = {**os.environ, "PYTHONPATH": str(tree), "OMP_NUM_THREADS": "1"}
-    out = subprocess.run([sys.executable, "-c", _EPISODE, scenario, reaction, ego, str(seed), str(duration)],
+    out = subprocess.run([sys.executable, "-c", _EPISODE, scenario, reaction, ego, str(seed), str(duration),
+                          str(int(cpu))],
                          cwd=tree, env=env, capture_output=True, text=True, check=False)
     if out.returncode != 0:
         raise SystemExit(f"{tree}: {scenario} {ego} seed {seed} failed:\n{out.stderr[-2000:]}")
@@ -69,11 +75,15 @@ def main() -> int:
     p.add_argument("--seeds", default="0", help="comma-separated or a range a-b")
     p.add_argument("--duration", type=float, default=60.0, help="recorded seconds per episode")
     p.add_argument("--repeats", type=int, default=1, help="runs of each episode per tree (speed only)")
+    p.add_argument("--cpu", action="store_true", help="time the loop in CPU s of the episode's process, not wall s "
+                   "(load-independent; only where the episode runs in one process: not the SUMO oracle, whose "
+                   "branches run in worker processes)")
     args = p.parse_args()
     lo, _, hi = args.seeds.partition("-")
     seeds = list(range(int(lo), int(hi) + 1)) if hi else [int(s) for s in args.seeds.split(",")]
     trees = {"baseline": args.baseline.resolve(), "this": ROOT}
-    print(f"== closed loop, {args.duration:g} s episodes, reaction {args.reaction}, seeds {args.seeds}; "
+    print(f"== closed loop, {args.duration:g} s episodes, reaction {args.reaction}, seeds {args.seeds}, "
+          f"{'CPU' if args.cpu else 'wall'} time; "
           f"baseline {trees['baseline']}, this {trees['this']}")
     print("| scenario | ego | seed | x real time, baseline -> this | ratio | ms per simulated s: sim / predict / plan, "
           "baseline -> this | results |")
@@ -85,7 +95,8 @@ def main() -> int:
                 runs: dict[str, list[dict]] = {"baseline": [], "this": []}
                 for r in range(args.repeats):
                     for name in (("baseline", "this") if r % 2 == 0 else ("this", "baseline")):  # alternate
-                        runs[name].append(run(trees[name], scenario, args.reaction, ego, seed, args.duration))
+                        runs[name].append(run(trees[name], scenario, args.reaction, ego, seed, args.duration,
+                                             args.cpu))
                 diff = [d for s in runs["this"] for d in differences(runs["baseline"][0], s)]
                 diff += [d for s in runs["baseline"][1:] for d in differences(runs["baseline"][0], s)]
                 bad += bool(diff)
