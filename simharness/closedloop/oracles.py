@@ -22,7 +22,10 @@ come out the same up to the first frame d where the check found a different one,
 the last branch there (from a snapshot taken every `snapshot_every` frames, its commands replayed up to
 d) and the check itself restarts from the latest of its own saved ego states that the changed frames
 cannot have reached. A spent converged branch is likewise continued from where it was verified, not
-re-rolled from the live state. Both are what re-rolling gives, frame for frame. Where no fixed point exists (a
+re-rolled from the live state. Both are what re-rolling gives, frame for frame. A snapshot of a SUMO branch is a
+fork, whose copy-on-write costs about two frames of stepping: taken every 10 frames, and none past the settled
+frame, where no round resumes. A SUMO branch rolls each stretch in its worker (`SumoProcess.rollout`, the ego a
+picklable `_Drive`): one message per stretch, not a round trip per frame. Where no fixed point exists (a
 self-defeating forecast: told that a scooter cuts in, the ego holds back and the scooter does
 not cut in; told it does not, the ego closes up and it does) the iteration cycles (a round repeats an
 earlier one, or the ego's command at the first differing frame flips back to an earlier round's); the oracle
