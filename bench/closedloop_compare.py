@@ -20,6 +20,7 @@ import json
 import os
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -37,17 +38,44 @@ spec = prepare_spec(load_scenario(scenario), reaction).with_overrides({"duration
 s = run_episode(EpisodeJob(spec, int(seed), ego, LoopConfig(), keep_scene=False))["scores"]
 print(json.dumps({k: v for k, v in s.items() if isinstance(v, (int, float, str, bool)) or v is None}))
 """
-TIMING = ("wall_s", "realtime_factor", "realtime_factor_with_warmup")
+TIMING = ("wall_s", "realtime_factor", "realtime_factor_with_warmup", "cpu_all_s")
+# With --cpu, every Python process of the episode (its SUMO worker and the worker's forks, which end in os._exit)
+# appends its own CPU seconds to a log on the way out, so that the episode's CPU over all processes adds up.
+_SITECUSTOMIZE = """
+import atexit, os
+_log, _exit, _pid = os.environ.get("CLOSEDLOOP_CPU_LOG"), os._exit, os.getpid()
+def _note():
+    if _log:
+        t = os.times()
+        with open(_log, "a") as f:
+            f.write(f"{os.getpid()} {t.user + t.system}\\n")
+def _exit_noting(code):
+    _note()
+    _exit(code)
+os._exit = _exit_noting
+atexit.register(_note)
+"""
 
 
 def run(tree: Path, scenario: str, reaction: str, ego: str, seed: int, duration: float, cpu: bool) -> dict:
     env = {**os.environ, "PYTHONPATH": str(tree), "OMP_NUM_THREADS": "1"}
+    tmp = tempfile.TemporaryDirectory()
+    if cpu:
+        (Path(tmp.name) / "sitecustomize.py").write_text(_SITECUSTOMIZE)
+        env["PYTHONPATH"] = os.pathsep.join([tmp.name, str(tree)])
+        env["CLOSEDLOOP_CPU_LOG"] = str(Path(tmp.name) / "cpu.log")
     out = subprocess.run([sys.executable, "-c", _EPISODE, scenario, reaction, ego, str(seed), str(duration),
                           str(int(cpu))],
                          cwd=tree, env=env, capture_output=True, text=True, check=False)
     if out.returncode != 0:
         raise SystemExit(f"{tree}: {scenario} {ego} seed {seed} failed:\n{out.stderr[-2000:]}")
-    return json.loads(out.stdout.strip().splitlines()[-1])
+    scores = json.loads(out.stdout.strip().splitlines()[-1])
+    if cpu:  # CPU s of every process of the episode, reset and warm-up included
+        log = Path(tmp.name) / "cpu.log"
+        lines = log.read_text().splitlines() if log.exists() else []
+        scores["cpu_all_s"] = sum(float(line.split()[1]) for line in lines)
+    tmp.cleanup()
+    return scores
 
 
 def differences(a: dict, b: dict) -> list[str]:
@@ -76,8 +104,8 @@ def main() -> int:
     p.add_argument("--duration", type=float, default=60.0, help="recorded seconds per episode")
     p.add_argument("--repeats", type=int, default=1, help="runs of each episode per tree (speed only)")
     p.add_argument("--cpu", action="store_true", help="time the loop in CPU s of the episode's process, not wall s "
-                   "(load-independent; only where the episode runs in one process: not the SUMO oracle, whose "
-                   "branches run in worker processes)")
+                   "(load-independent; the SUMO oracle's branches run in worker processes: for it, read the added "
+                   "column, simulated s per CPU s summed over all the episode's processes, warm-up included)")
     args = p.parse_args()
     lo, _, hi = args.seeds.partition("-")
     seeds = list(range(int(lo), int(hi) + 1)) if hi else [int(s) for s in args.seeds.split(",")]
@@ -85,9 +113,10 @@ def main() -> int:
     print(f"== closed loop, {args.duration:g} s episodes, reaction {args.reaction}, seeds {args.seeds}, "
           f"{'CPU' if args.cpu else 'wall'} time; "
           f"baseline {trees['baseline']}, this {trees['this']}")
-    print("| scenario | ego | seed | x real time, baseline -> this | ratio | ms per simulated s: sim / predict / plan, "
-          "baseline -> this | results |")
-    print("|---|---|---|---|---|---|---|")
+    cpu_col = "simulated s per CPU s of all processes (incl. warm-up), baseline -> this | " if args.cpu else ""
+    print("| scenario | ego | seed | x real time, baseline -> this | ratio | " + cpu_col
+          + "ms per simulated s: sim / predict / plan, baseline -> this | results |")
+    print("|---|---|---|---|---|---|---|" + ("---|" if args.cpu else ""))
     bad = 0
     for scenario in args.scenarios.split(","):
         for ego in args.egos.split(","):
@@ -104,7 +133,11 @@ def main() -> int:
                 best = {n: max(v, key=lambda s: s["realtime_factor"]) for n, v in runs.items()}
                 fmt = {n: ", ".join(f"{x:.2f}x" for x in v) for n, v in rt.items()}
                 ratio = (sum(rt["this"]) / len(rt["this"])) / (sum(rt["baseline"]) / len(rt["baseline"]))
-                print(f"| {scenario} | {ego} | {seed} | {fmt['baseline']} -> {fmt['this']} | {ratio:.2f} | "
+                cpu = ""
+                if args.cpu:  # all processes: simulated s per CPU s, the reset and warm-up included
+                    per = {n: ", ".join(f"{s['sim_s'] / s['cpu_all_s']:.2f}x" for s in v) for n, v in runs.items()}
+                    cpu = f"{per['baseline']} -> {per['this']} | "
+                print(f"| {scenario} | {ego} | {seed} | {fmt['baseline']} -> {fmt['this']} | {ratio:.2f} | {cpu}"
                       f"{per_sim_s(best['baseline'])} -> {per_sim_s(best['this'])} | "
                       + ("identical" if not diff else "DIFFER: " + "; ".join(diff[:6])) + " |", flush=True)
     return 1 if bad else 0
