@@ -202,9 +202,9 @@ class SamplingPlanner:
         if forecast.sigma_rho is not None:
             sr = forecast.sigma_rho[sig_rows, :frames].astype(np.float64)
             sxx, syy, sxy = sr[..., 0] ** 2 + floor2, sr[..., 1] ** 2 + floor2, sr[..., 2] * sr[..., 0] * sr[..., 1]
-        else:
-            sxx = syy = np.broadcast_to(floor2, axy.shape[:2])
-            sxy = np.zeros(axy.shape[:2])
+        else:  # the same covariance for every agent: the sigmas below are computed once per (candidate, step)
+            sxx = syy = floor2
+            sxy = np.zeros_like(floor2)
         ah = _path_heading(now.xy[rows, -1], now.heading[rows, -1], axy)  # (M, F)
         ce, se = np.cos(eh)[:, None], np.sin(eh)[:, None]  # (C, 1, F)
         ca, sa = np.cos(ah)[None], np.sin(ah)[None]  # (1, M, F)
@@ -217,16 +217,14 @@ class SamplingPlanner:
         la, wa = (now.length[rows] / 2)[None, :, None], (now.width[rows] / 2)[None, :, None]
         half_along = le / 2 + cfg.margin_long + cos_dh * la + sin_dh * wa
         half_lat = we / 2 + cfg.margin_lat + sin_dh * la + cos_dh * wa
-        # Marginal sigmas of the world covariance on the candidate's axes.
+        # Marginal sigmas of the world covariance on the candidate's axes: (C, M, F), or (C, 1, F) without sigmas.
         s_along = np.sqrt(ce * ce * sxx[None] + 2 * ce * se * sxy[None] + se * se * syy[None])
         s_lat = np.sqrt(se * se * sxx[None] - 2 * ce * se * sxy[None] + ce * ce * syy[None])
-        p_along = ndtr((half_along - along) / s_along) - ndtr((-half_along - along) / s_along)
-        p_lat = ndtr((half_lat - lat) / s_lat) - ndtr((-half_lat - lat) / s_lat)
         # Followers (behind, in our band now) are left to the rear-end term; those behind beside us still count.
         behind = (now.xy[rows, -1] - p0) @ fwd < -le / 2  # (M,)
         lat_now = (now.xy[rows, -1] - p0) @ np.array([-fwd[1], fwd[0]])
         follow = behind & (np.abs(lat_now) < (now.width[rows] + we) / 2)
-        prob = np.where(follow[None, :, None], 0.0, p_along * p_lat)  # (C, M, F)
+        prob = _box_probability(along, half_along, s_along, lat, half_lat, s_lat, ~follow[None, :, None])  # (C, M, F)
         # Expected overlaps, not capped at 1: a candidate already touching one agent must still avoid the next.
         cost = cfg.w_collision * (prob.sum(1) * disc[None]).sum(1) / disc.sum()
         # Rear-end: followers now behind in the ego's band hold speed for the reaction time, then brake.
@@ -238,11 +236,14 @@ class SamplingPlanner:
             gap = ex0[:, None] - x_f[None] - le / 2 - (now.length[rows[follow]] / 2)[None, :, None]  # (C, B, F)
             cost += cfg.w_rear * ((gap < 0).any(1) * disc[None]).sum(1) / disc.sum()
         # Headway: agents ahead inside the ego's lateral band, closer than the desired gap.
-        in_band = np.abs(lat) < half_lat
-        gap_along = np.abs(along) - half_along
-        want = cfg.standstill_gap + cfg.headway_s * ev[:, None, :]
-        short = np.where((along > 0) & in_band, np.maximum(want - (gap_along + cfg.margin_long), 0.0), 0.0)
-        cost += cfg.w_headway * np.einsum("cmf,f->c", (short / np.maximum(want, 1.0)) ** 2, disc) / frames
+        # (Computed where it is not zero: ahead and in the band; the same values as over the whole array.)
+        ahead = (along > 0) & (np.abs(lat) < half_lat)
+        want = np.broadcast_to(cfg.standstill_gap + cfg.headway_s * ev[:, None, :], along.shape)
+        w = want[ahead]
+        short = np.maximum(w - ((np.abs(along[ahead]) - half_along[ahead]) + cfg.margin_long), 0.0)
+        short2 = np.zeros_like(along)
+        short2[ahead] = (short / np.maximum(w, 1.0)) ** 2
+        cost += cfg.w_headway * np.einsum("cmf,f->c", short2, disc) / frames
         return cost
 
     def _on_road(self, exy: np.ndarray, eh: np.ndarray, width: float) -> np.ndarray:
@@ -264,6 +265,29 @@ class ConstantSpeedPlanner:
 
     def plan(self, now: Scene, forecast: Forecast | None) -> EgoCommand:
         return EgoCommand(0.0, 0.0)
+
+
+# ndtr(x) is exactly 1.0 for every x >= _NDTR_ONE and exactly 0.0 for every x <= _NDTR_ZERO (1 - 2^-54 rounds to 1;
+# erfc underflows), so a difference of two such values is exactly 0 there (checked in tests/test_planners.py).
+_NDTR_ONE, _NDTR_ZERO = 8.3, -38.0
+
+
+def _box_probability(along: np.ndarray, half_along: np.ndarray, s_along: np.ndarray, lat: np.ndarray,
+                     half_lat: np.ndarray, s_lat: np.ndarray, counted: np.ndarray) -> np.ndarray:
+    """(C, M, F) probability that the other's centre lies in the box |along| < half_along, |lat| < half_lat
+    (independent Gaussians of sigmas s_along, s_lat about it), 0 where not `counted`; all inputs broadcast to
+    (C, M, F), metres.
+
+    The four normal CDFs are evaluated only where neither factor is exactly zero (often most of the array: an agent
+    metres ahead or beside is out of reach of the Gaussian's float tail); elsewhere the product is the 0.0 that the
+    full evaluation gives, so the result is the same to the bit.
+    """
+    a1, b1 = (half_along - along) / s_along, (-half_along - along) / s_along
+    a2, b2 = (half_lat - lat) / s_lat, (-half_lat - lat) / s_lat
+    live = (b1 < _NDTR_ONE) & (a1 > _NDTR_ZERO) & (b2 < _NDTR_ONE) & (a2 > _NDTR_ZERO) & counted
+    prob = np.zeros(live.shape)
+    prob[live] = (ndtr(a1[live]) - ndtr(b1[live])) * (ndtr(a2[live]) - ndtr(b2[live]))
+    return prob
 
 
 def rows_of(ids: np.ndarray, wanted: np.ndarray) -> np.ndarray:

@@ -121,3 +121,26 @@ def test_no_hard_stop_in_front_of_a_fast_follower_for_a_slow_leader():
     ahead_only = _now(10.0, [(30.0, 0.0, 6.0)])
     alone.plan(ahead_only, _cv_forecast(ahead_only))
     assert planner.last_cost[hard] > alone.last_cost[hard] + 5.0
+
+
+def test_box_probability_is_the_full_evaluation_to_the_bit():
+    """The collision probability skips the normal CDFs where a factor is exactly 0: the same floats as evaluating
+    them everywhere, over near, far, ahead, behind and beside agents, with per-agent and shared sigmas."""
+    from scipy.special import ndtr
+
+    from simharness.planners import _NDTR_ONE, _NDTR_ZERO, _box_probability
+
+    probe = np.concatenate([np.linspace(_NDTR_ONE, 60.0, 200_001), [np.inf]])
+    assert (ndtr(probe) == 1.0).all() and (ndtr(-probe - (_NDTR_ONE - _NDTR_ZERO)) == 0.0).all()
+    rng = np.random.default_rng(3)
+    shape = (49, 30, 20)
+    along, lat = rng.normal(0, 25, shape), rng.normal(0, 6, shape)
+    half_along, half_lat = rng.uniform(2, 6, shape), rng.uniform(1, 3, shape)
+    counted = rng.random((1, 30, 1)) < 0.8
+    for s_along, s_lat in ((rng.uniform(0.2, 3, shape), rng.uniform(0.2, 2, shape)),
+                           (rng.uniform(0.2, 0.6, (49, 1, 20)), rng.uniform(0.2, 0.6, (49, 1, 20)))):
+        full = (ndtr((half_along - along) / s_along) - ndtr((-half_along - along) / s_along)) * (
+            ndtr((half_lat - lat) / s_lat) - ndtr((-half_lat - lat) / s_lat))
+        full = np.where(counted, full, 0.0)
+        got = _box_probability(along, half_along, s_along, lat, half_lat, s_lat, counted)
+        assert np.array_equal(got, full) and 0 < (got > 0).mean() < 0.5

@@ -92,6 +92,30 @@ def test_branch_leaves_the_original_alone_and_matches_it():
         sim.close()
 
 
+def test_rollout_in_the_worker_gives_the_frames_of_stepping_and_snapshots_to_resume_from():
+    from simharness.closedloop.oracles import _Drive
+
+    sim = SumoProcess(SPEC)
+    try:
+        frame = _run(sim, 5, 6)[-1]
+        branch = sim.branch()
+        commands = [_command(k) for k in range(6, 18)]
+        drive = _Drive(SPEC.dt, 25, 60.0, 6, (None, None, None), None, commands)  # replays `commands` only
+        frames, issued, snaps = sim.rollout(drive, frame, 0, len(commands), snapshots=[0, 5, 10])
+        stepped = [branch.step(c) for c in commands]
+        assert issued == commands and sorted(snaps) == [0, 5, 10]
+        assert all(_same(x, y) for x, y in zip(frames, stepped, strict=True))
+        # A snapshot is the simulation at its frame: stepped on, it gives the rolled-out frames from there.
+        again = [snaps[5].step(c) for c in commands[5:]]
+        assert all(_same(x, y) for x, y in zip(again, frames[5:], strict=True))
+        assert sim.rollout(drive, frames[-1], 12, 12) == ([], [], {})  # an empty stretch: nothing moves
+        assert _same(sim.step(None), branch.step(None))
+        for s in (*snaps.values(), branch):
+            s.close()
+    finally:
+        sim.close()
+
+
 def test_worker_death_is_one_clear_error_and_close_reaps():
     sim = SumoProcess(SPEC)
     sim.reset(1)

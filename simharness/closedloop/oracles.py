@@ -22,7 +22,10 @@ come out the same up to the first frame d where the check found a different one,
 the last branch there (from a snapshot taken every `snapshot_every` frames, its commands replayed up to
 d) and the check itself restarts from the latest of its own saved ego states that the changed frames
 cannot have reached. A spent converged branch is likewise continued from where it was verified, not
-re-rolled from the live state. Both are what re-rolling gives, frame for frame. Where no fixed point exists (a
+re-rolled from the live state. Both are what re-rolling gives, frame for frame. A snapshot of a SUMO branch is a
+fork, whose copy-on-write costs about two frames of stepping: taken every 10 frames, and none past the settled
+frame, where no round resumes. A SUMO branch rolls each stretch in its worker (`SumoProcess.rollout`, the ego a
+picklable `_Drive`): one message per stretch, not a round trip per frame. Where no fixed point exists (a
 self-defeating forecast: told that a scooter cuts in, the ego holds back and the scooter does
 not cut in; told it does not, the ego closes up and it does) the iteration cycles (a round repeats an
 earlier one, or the ego's command at the first differing frame flips back to an earlier round's); the oracle
@@ -136,9 +139,10 @@ class Track:
 class _Rollout:
     """One branch rolled ahead from episode frame k: frames[i] is frame k + i, commands[i] the ego's there.
 
-    snaps: {i: simulator at frames[i]} every `snapshot_every` frames (resumed from, never stepped);
-    checkpoints: {i: ego state before driving frames[i]} as replanning over this branch's own track gives
-    it (the check starts at the latest); verified: the ego state before driving frame k + settled, once checked.
+    snaps: {i: simulator at frames[i]} every `snapshot_every` frames up to the settled one (resumed from, never
+    stepped); checkpoints: {i: ego state before driving frames[i]} every `checkpoint_every` frames, as replanning
+    over this branch's own track gives it (the check starts at the latest); verified: the ego state before driving
+    frame k + settled, once checked.
     """
 
     k: int
@@ -159,29 +163,24 @@ class BranchOracle:
 
     horizon: forecast frames; plan_frames: frames of the forecast the planner uses; radius: m (targets);
     window: frames each branch is rolled ahead; max_iterations: guess -> branch rounds per branch;
-    snapshot_every: frames between the branch snapshots that later rounds resume from.
+    snapshot_every: frames between the branch snapshots that later rounds resume from (up to the settled frame
+    only: no round resumes later); checkpoint_every: frames between the ego states that the check restarts from.
     `serve`: where the live planner is served degraded forecasts (`perturbations.Degrader`), the branches'
     egos are served the same (a copy of it, deterministic per frame and agent).
     `stats`: branches, iterations, cycles (no fixed point), unconverged, mismatches (see the module docstring).
     """
 
     def __init__(self, dt: float, horizon: int, plan_frames: int, radius: float, window: int,
-                 max_iterations: int = 4, snapshot_every: int = 5) -> None:
+                 max_iterations: int = 4, snapshot_every: int = 10, checkpoint_every: int = 5) -> None:
         self.dt, self.horizon, self.plan_frames, self.radius = dt, horizon, plan_frames, radius
         self.window = max(window, horizon + 2 * plan_frames + 1)
         self.max_iterations = max_iterations
         self.snapshot_every = max(1, snapshot_every)
+        self.checkpoint_every = max(1, checkpoint_every)
         self.serve: Any = None
         self.track: Track | None = None
         self.last: _Rollout | None = None
         self.stats = {"branches": 0, "iterations": 0, "cycles": 0, "unconverged": 0, "mismatches": 0}
-
-    def _forecast_from(self, track: Track, frame: Frame, k: int) -> Forecast | None:
-        rows = near_targets(frame, self.radius)
-        if rows.size == 0:
-            return None
-        return Forecast(agent_id=frame.agent_id[rows], mean=track.future(frame, rows, k, self.horizon, self.dt),
-                        dt=self.dt)
 
     def forecast(self, k: int, frame: Frame, sim: Any, planner: Planner, clock: LoopClock) -> Forecast | None:
         """The others' true future at frame k of the live episode (sim, planner, clock: its live state)."""
@@ -191,8 +190,10 @@ class BranchOracle:
             fresh = False
             self._drop()
         if not fresh:
+            if self.stats["branches"] == 0 and hasattr(sim, "rollout"):  # the worker imports the ego's code
+                sim.rollout(self._driver(k, (planner, clock, self.serve), Track.of([frame], k)), frame, 0, 0)  # once
             self._branch_out(k, frame, sim, planner, clock)
-        return self._forecast_from(self.track, frame, k)
+        return _forecast_from(self.track, frame, k, self.dt, self.horizon, self.radius)
 
     def close(self) -> None:
         """Close the kept branch's snapshots (end of the episode)."""
@@ -284,26 +285,40 @@ class BranchOracle:
         base = max(j for j in roll.snaps if j <= n - (1 if step_last else 0))
         sim = roll.snaps[base].branch()
         try:
-            for j in range(base, n):
-                f = sim.step(roll.commands[j])
-                if j + 1 >= len(roll.frames):
-                    roll.frames.append(f)
-                if (j + 1) % self.snapshot_every == 0 and j + 1 not in roll.snaps:
-                    roll.snaps[j + 1] = sim.branch()
-            return self._extend(roll, sim, ego, guess)
+            return self._extend(roll, sim, ego, guess, start=base, replay_to=n)
         finally:
             sim.close()
 
-    def _extend(self, roll: _Rollout, sim: Any, ego: tuple, guess: Track) -> _Rollout:
-        """Roll `sim` (at the roll's last frame) on to `window` frames, the ego driven by `ego` on forecasts
-        read from `guess`."""
-        planner, clock, serve = ego
-        for i in range(len(roll.frames) - 1, self.window):  # frames are sequential: the loop itself
-            if i % self.snapshot_every == 0 and i not in roll.snaps:
-                roll.snaps[i] = sim.branch()
-            roll.commands.append(self._drive(roll.k + i, roll.k, roll.frames[-1], planner, clock, serve, guess))
-            roll.frames.append(sim.step(roll.commands[-1]))
+    def _extend(self, roll: _Rollout, sim: Any, ego: tuple, guess: Track, start: int | None = None,
+                replay_to: int = 0) -> _Rollout:
+        """Roll `sim` (at frame index `start` of the roll, its last frame by default) on to `window` frames: the
+        roll's own commands up to frame index `replay_to`, then the ego driven by `ego` on forecasts read from
+        `guess`; snapshots every `snapshot_every` frames. A SUMO branch rolls the whole stretch in its worker."""
+        start = len(roll.frames) - 1 if start is None else start
+        drive = self._driver(roll.k, ego, guess, roll.commands[:replay_to])
+        # A round resumes at a frame before the settled one (a slide at it): later snapshots would go unused.
+        settled = self.window - 2 * self.plan_frames
+        at = [i for i in range(start, min(self.window, settled + 1)) if i % self.snapshot_every == 0
+              and i not in roll.snaps]
+        if hasattr(sim, "rollout"):  # one message for the stretch, not one round trip per frame
+            frames, commands, snaps = sim.rollout(drive, roll.frames[start], start, self.window, at)
+            roll.snaps.update(snaps)
+        else:
+            frames, commands, frame = [], [], roll.frames[start]
+            for i in range(start, self.window):  # frames are sequential: the loop itself
+                if i in at:
+                    roll.snaps[i] = sim.branch()
+                commands.append(drive(i, frame))
+                frame = sim.step(commands[-1])
+                frames.append(frame)
+        # Replayed frames are the roll's own (the same to the bit); keep the new ones.
+        new = len(roll.frames) - 1 - start
+        roll.frames += frames[new:]
+        roll.commands += commands[len(roll.commands) - start:]
         return roll
+
+    def _driver(self, k: int, ego: tuple, guess: Track, replay: list[EgoCommand | None] | None = None) -> _Drive:
+        return _Drive(self.dt, self.horizon, self.radius, k, ego, guess, list(replay or []))
 
     def _check(self, roll: _Rollout, track: Track, settled: int) -> tuple[int, EgoCommand | None, tuple]:
         """Replan over the branch's frames with forecasts read from its own track, from its latest checkpoint:
@@ -312,25 +327,13 @@ class BranchOracle:
         i0 = max(roll.checkpoints)
         planner, clock, serve = self._copy(roll.checkpoints[i0])
         for i in range(i0, settled):  # stops at the first command that differs
-            if i > i0 and i % self.snapshot_every == 0:
+            if i > i0 and i % self.checkpoint_every == 0:
                 roll.checkpoints[i] = self._copy((planner, clock, serve))
-            command = self._drive(roll.k + i, roll.k, roll.frames[i], planner, clock, serve, track)
+            command = _drive(roll.k + i, roll.k, roll.frames[i], (planner, clock, serve), track, self.dt,
+                             self.horizon, self.radius)
             if command != roll.commands[i]:
                 return i, command, (planner, clock, serve)
         return settled, None, (planner, clock, serve)
-
-    def _drive(self, j: int, k: int, f: Frame, planner: Planner, clock: LoopClock, serve: Any,
-               guess: Track) -> EgoCommand | None:
-        """The ego's command at frame j of a branch started at frame k, forecasts read from `guess`."""
-        if j > k and not clock.tick(f.ego >= 0):  # the episode ticked frame k already
-            return None
-        if clock.due(j):
-            forecast = self._forecast_from(guess, f, j)
-            if serve is not None and forecast is not None:  # served degraded, as the live planner is
-                rows = near_targets(f, self.radius)
-                forecast = serve.degrade(forecast, f.xy[rows], f.agent_type[rows], j, self.horizon)
-            clock.issue(j, forecast)
-        return planner.plan(scene_of(f, self.dt), clock.current(j))
 
     @staticmethod
     def _copy(state: tuple) -> tuple:
@@ -338,6 +341,50 @@ class BranchOracle:
         changed)."""
         road = getattr(state[0], "road", None)
         return copy.deepcopy(state, {} if road is None else {id(road): road})
+
+
+def _forecast_from(track: Track, frame: Frame, k: int, dt: float, horizon: int, radius: float) -> Forecast | None:
+    """The forecast at frame k of the agents within `radius` of the ego, read from `track`."""
+    rows = near_targets(frame, radius)
+    if rows.size == 0:
+        return None
+    return Forecast(agent_id=frame.agent_id[rows], mean=track.future(frame, rows, k, horizon, dt), dt=dt)
+
+
+def _drive(j: int, k: int, f: Frame, ego: tuple, guess: Track, dt: float, horizon: int,
+           radius: float) -> EgoCommand | None:
+    """The ego's command at frame j of a branch started at frame k, forecasts read from `guess`; ego: its driving
+    state (planner, clock, degrader or None), advanced."""
+    planner, clock, serve = ego
+    if j > k and not clock.tick(f.ego >= 0):  # the episode ticked frame k already
+        return None
+    if clock.due(j):
+        forecast = _forecast_from(guess, f, j, dt, horizon, radius)
+        if serve is not None and forecast is not None:  # served degraded, as the live planner is
+            rows = near_targets(f, radius)
+            forecast = serve.degrade(forecast, f.xy[rows], f.agent_type[rows], j, horizon)
+        clock.issue(j, forecast)
+    return planner.plan(scene_of(f, dt), clock.current(j))
+
+
+@dataclasses.dataclass
+class _Drive:
+    """The ego of a branch started at episode frame k as one picklable callable, (frame index i, frame i) ->
+    command: the recorded `replay` commands before index len(replay), then `_drive` with the driving state `ego`
+    on forecasts read from `guess` (a SUMO branch runs it in its worker: `SumoProcess.rollout`)."""
+
+    dt: float
+    horizon: int
+    radius: float
+    k: int
+    ego: tuple
+    guess: Track
+    replay: list
+
+    def __call__(self, i: int, frame: Frame) -> EgoCommand | None:
+        if i < len(self.replay):
+            return self.replay[i]
+        return _drive(self.k + i, self.k, frame, self.ego, self.guess, self.dt, self.horizon, self.radius)
 
 
 def scene_of(frame: Frame, dt: float) -> Scene:

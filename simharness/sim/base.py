@@ -8,6 +8,7 @@ warm-up unrecorded and returns the first recorded frame (t = 0).
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Sequence
 from typing import Any, Protocol, runtime_checkable
 
@@ -100,13 +101,18 @@ class RoadGeometry:
 
     def on_road(self, xy: np.ndarray) -> np.ndarray:
         """(..., 2) points -> (...) bool, inside any drivable polygon."""
-        from matplotlib.path import Path as MplPath
-
         pts = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
         inside = np.zeros(len(pts), bool)
-        for poly in self.drivable:
-            inside |= MplPath(poly).contains_points(pts, radius=1e-6)
+        for path in self._drivable_paths:
+            inside |= path.contains_points(pts, radius=1e-6)
         return inside.reshape(np.shape(xy)[:-1])
+
+    @functools.cached_property
+    def _drivable_paths(self) -> tuple[Any, ...]:
+        """The drivable polygons as matplotlib paths, built once (the planner tests points every frame)."""
+        from matplotlib.path import Path as MplPath
+
+        return tuple(MplPath(poly) for poly in self.drivable)
 
     def to_dict(self) -> dict[str, Any]:
         return {k: [np.round(p, 3).tolist() for p in getattr(self, k)]

@@ -18,6 +18,12 @@ API (all methods block until the worker answers):
   fork). Stepping the branch never touches the original; the branch stepped with the same ego
   commands gives the same frames as the original would. A branch can branch again; ``reset`` on a
   branch starts a fresh simulation in it.
+- ``rollout(drive, frame, start, stop, snapshots) -> (frames, commands, branches)``: frames start + 1 .. stop
+  with the ego's command at each frame i given by ``drive(i, frame_i)``, a picklable callable run in the
+  worker: one message for the whole stretch instead of one round trip per frame (what a closed-loop ego
+  needs, when its planner can run where the simulation is: the exact oracle's branches). ``branches``
+  holds a ``branch()`` taken at each index in ``snapshots`` (before stepping there). The same frames as
+  stepping with those commands from here.
 - ``close()``: end the simulation and the worker (also done on garbage collection and at exit).
 - ``alive``: whether the worker is still there.
 
@@ -36,6 +42,7 @@ import socket
 import subprocess
 import sys
 import weakref
+from collections.abc import Callable, Sequence
 from multiprocessing import reduction
 from multiprocessing.connection import Connection
 from pathlib import Path
@@ -123,6 +130,41 @@ class SumoProcess:
         child = SumoProcess(self.spec, _conn=Connection(ours.detach()), _pid=pid, _road=self.road)
         child.seed = self.seed
         return child
+
+    def rollout(self, drive: Callable[[int, Frame], EgoCommand | None], frame: Frame, start: int, stop: int,
+                snapshots: Sequence[int] = ()) -> tuple[list[Frame], list[EgoCommand | None], dict[int, SumoProcess]]:
+        """Step from frame index `start` (this simulation is there now; `frame` is that frame) to `stop`, the ego's
+        command at each frame i being `drive(i, frame_i)`, run in the worker (see the module doc).
+
+        -> frames start + 1 .. stop, the commands at start .. stop - 1, and {i: branch at frame i} for i in
+        `snapshots` (indices in [start, stop)). The worker imports `drive`'s module when it first unpickles one:
+        an empty rollout (start == stop) on a simulation before branching it does that once for every branch.
+        """
+        conn = self._require()
+        at = sorted(set(snapshots))
+        pairs = [socket.socketpair() for _ in at]
+        try:
+            conn.send(("rollout", (drive, frame, int(start), int(stop), at)))
+            for _, theirs in pairs:
+                reduction.send_handle(conn, theirs.fileno(), self._pid)
+        except OSError:
+            for ours, _ in pairs:
+                ours.close()
+            raise self._died() from None
+        finally:
+            for _, theirs in pairs:
+                theirs.close()
+        try:
+            frames, commands, pids = self._answer("rollout")
+        except BaseException:
+            for ours, _ in pairs:
+                ours.close()
+            raise
+        branches = {}
+        for i, (ours, _), pid in zip(at, pairs, pids, strict=True):
+            branches[i] = SumoProcess(self.spec, _conn=Connection(ours.detach()), _pid=pid, _road=self.road)
+            branches[i].seed = self.seed
+        return frames, commands, branches
 
     @property
     def alive(self) -> bool:
@@ -234,6 +276,10 @@ def _serve(conn: Connection, sim: Any, spec: ScenarioSpec, forked: bool) -> None
                 value = sim.reset(arg)
             elif op == "step":
                 value = sim.step(arg)
+            elif op == "rollout":
+                value = _rollout(conn, sim, spec, *arg)
+                if value is None:  # a snapshot's copy: it has served its own connection and is done
+                    return
             elif op == "restart_ego":
                 value = sim.restart_ego()
             elif op == "advance_unrecorded":
@@ -246,6 +292,35 @@ def _serve(conn: Connection, sim: Any, spec: ScenarioSpec, forked: bool) -> None
     if not forked:
         sim.close()
         shutil.rmtree(sim._folder, ignore_errors=True)  # os._exit below skips SumoSimulator.__del__
+
+
+def _rollout(conn: Connection, sim: Any, spec: ScenarioSpec, drive: Callable[[int, Frame], EgoCommand | None],
+             frame: Frame, start: int, stop: int, at: list[int]) -> tuple | None:
+    """The worker's side of `SumoProcess.rollout`: (frames, commands, snapshot pids), or None in a snapshot's copy
+    once its connection has closed."""
+    fds = {i: reduction.recv_handle(conn) for i in at}
+    frames, commands, pids = [], [], []
+    try:
+        for i in range(start, stop):
+            if i in fds:  # a snapshot: the copy serves its own connection, as after "branch"
+                fd = fds.pop(i)
+                pid = os.fork()
+                if pid == 0:
+                    conn.close()
+                    for other in fds.values():
+                        os.close(other)
+                    fds.clear()
+                    _serve(Connection(fd), sim, spec, forked=True)
+                    return None
+                os.close(fd)
+                pids.append(pid)
+            commands.append(drive(i, frame))
+            frame = sim.step(commands[-1])
+            frames.append(frame)
+    finally:
+        for fd in fds.values():
+            os.close(fd)
+    return frames, commands, pids
 
 
 def _worker_main(fd: int) -> None:
