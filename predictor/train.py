@@ -215,7 +215,7 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
     log = io.StringIO()
     writer = csv.writer(log)
     writer.writerow(["epoch", "loss", "train_loss", "val_mse", "val_nll", "val_rmse_m", "seconds", "samples_per_s",
-                     "lr"])
+                     "lr", "val_ade"])
     best, best_epoch, stale = math.inf, -1, 0
     history = [{"epoch": 0, "loss": "init", "train": math.nan, **_epoch_eval(net, store, val_idx, batch_size, dev)}]
     if select != "loss" and history[0][select] < best:  # the starting weights are a candidate too
@@ -226,8 +226,10 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
     samples_seen, train_time = 0, 0.0
     for epoch in range(epochs):
         kind = loss_for_epoch(epoch, warmup_epochs)
-        if epoch == warmup_epochs and select == "loss":
-            best, stale = math.inf, 0  # the selection criterion switches from MSE to NLL here
+        if epoch == warmup_epochs:  # patience counts NLL-phase epochs only: its first epochs may be worse
+            stale = 0
+            if select == "loss":
+                best = math.inf  # the selection criterion switches from MSE to NLL here
         if lr_schedule == "plateau" and epoch in (0, warmup_epochs):  # a fresh plateau for each criterion
             sched = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, factor=0.5, patience=0)
         epoch_lr = opt.param_groups[0]["lr"]
@@ -263,7 +265,8 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
             sched.step(crit)
         history.append({"epoch": epoch + 1, "loss": kind, "train": tot / max(nb, 1), **val})
         writer.writerow([epoch + 1, kind, f"{tot / max(nb, 1):.6f}", f"{val['mse']:.6f}", f"{val['nll']:.6f}",
-                         f"{math.sqrt(val['mse']):.4f}", f"{secs:.2f}", f"{len(order) / secs:.1f}", f"{epoch_lr:.3g}"])
+                         f"{math.sqrt(val['mse']):.4f}", f"{secs:.2f}", f"{len(order) / secs:.1f}", f"{epoch_lr:.3g}",
+                         f"{val['ade']:.4f}"])
         if crit < best:
             best, best_epoch, stale = crit, epoch + 1, 0
             save_checkpoint(net, out / "model.pt")
