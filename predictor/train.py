@@ -125,7 +125,8 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
           progress: bool = True, max_val_samples: int | None = None,
           test_scenes: list[str] | None = None, cache_dir: Path | None = None, lr_schedule: str = "cosine",
           patience: int | None = None, device: str = "cpu", mean_loss: str = "nll",
-          init: str | Path | None = None, select: str = "loss", augment: bool = False) -> dict[str, Any]:
+          init: str | Path | None = None, select: str = "loss", augment: bool = False,
+          scale_jitter: float = 0.0) -> dict[str, Any]:
     """Train `model` on the train split of `data`, keep the best on the val split -> summary dict.
 
     lr_schedule: "cosine" (linear warm-up over LR_WARMUP of the steps, then cosine decay to LR_FLOOR x lr),
@@ -139,20 +140,23 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
     checkpoint: "loss" (the epoch's own loss: MSE in the warm-up, then NLL), or "mse" / "ade" (the means' squared or
     Euclidean error over every epoch, the starting weights included: a residual model starts as constant
     velocity, so it ends no worse than constant velocity on the validation split). augment: mirror a random half
-    of every batch (predictor.augment). Writes out/model.pt (the best epoch's weights), out/config.json,
-    out/log.csv. Returns
+    of every batch (predictor.augment). scale_jitter: scale every training sample by a log-uniform factor in
+    [1 / (1 + j), 1 + j] (0: off; predictor.augment.scale_batch). Writes out/model.pt (the best epoch's weights),
+    out/config.json, out/log.csv. Returns
     {"best_epoch", "best_val", "val_history", "epochs_run", "train_samples", "samples_per_s", ...}.
     """
     import torch
     from tqdm import tqdm
 
-    from predictor.augment import mirror_batch
+    from predictor.augment import mirror_batch, random_scales, scale_batch
     from predictor.losses import LOSSES, loss_for_epoch, loss_name
     from predictor.models import build_model
 
     if epochs < 1 or batch_size < 1 or not lr > 0 or warmup_epochs < 0 or (patience is not None and patience < 1):
         raise UserError(f"bad training settings: epochs {epochs}, batch size {batch_size}, lr {lr}, "
                         f"warm-up {warmup_epochs}, patience {patience}; expected positive numbers")
+    if not 0 <= scale_jitter < 10:
+        raise UserError(f"bad scale jitter {scale_jitter}; expected a fraction in [0, 10), e.g. 0.3")
     if mean_loss not in ("nll", "mse", "ade"):
         raise UserError(f"unknown mean loss {mean_loss!r}; expected nll, mse or ade")
     if select not in SELECT:
@@ -207,6 +211,8 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
               "device": dev.type, "versions": versions()}
     if init_info is not None:
         config["train"]["init"] = init_info
+    if scale_jitter > 0:  # only when on: the config hash of every other run stays what it was
+        config["train"]["scale_jitter"] = scale_jitter
     if max_val_samples is not None:
         config["train"]["max_val_samples"] = max_val_samples
     config["config_hash"] = hashlib.sha256(
@@ -215,7 +221,7 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
     log = io.StringIO()
     writer = csv.writer(log)
     writer.writerow(["epoch", "loss", "train_loss", "val_mse", "val_nll", "val_rmse_m", "seconds", "samples_per_s",
-                     "lr"])
+                     "lr", "val_ade"])
     best, best_epoch, stale = math.inf, -1, 0
     history = [{"epoch": 0, "loss": "init", "train": math.nan, **_epoch_eval(net, store, val_idx, batch_size, dev)}]
     if select != "loss" and history[0][select] < best:  # the starting weights are a candidate too
@@ -223,11 +229,14 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
         save_checkpoint(net, out / "model.pt")
     grids = {"nbr": window.neighbour_grid, "hz": window.horizon_grid}
     flips = np.random.default_rng(seed + 2)  # its own stream: the batch order is the same with or without
+    scales = np.random.default_rng(seed + 3)
     samples_seen, train_time = 0, 0.0
     for epoch in range(epochs):
         kind = loss_for_epoch(epoch, warmup_epochs)
-        if epoch == warmup_epochs and select == "loss":
-            best, stale = math.inf, 0  # the selection criterion switches from MSE to NLL here
+        if epoch == warmup_epochs:  # patience counts NLL-phase epochs only: its first epochs may be worse
+            stale = 0
+            if select == "loss":
+                best = math.inf  # the selection criterion switches from MSE to NLL here
         if lr_schedule == "plateau" and epoch in (0, warmup_epochs):  # a fresh plateau for each criterion
             sched = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, factor=0.5, patience=0)
         epoch_lr = opt.param_groups[0]["lr"]
@@ -239,6 +248,8 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
             b = store.batch(order[i:i + batch_size]).tensors()
             if augment:
                 b = mirror_batch(b, torch.from_numpy(flips.random(len(b["hist"])) < 0.5), grids)
+            if scale_jitter > 0:
+                b = scale_batch(b, random_scales(scales, len(b["hist"]), scale_jitter))
             b = _to(b, dev)
             if hasattr(net, "training_step"):  # a model with its own update (Social-GAN: discriminator, variety loss)
                 loss = net.training_step(b, kind, opt)
@@ -263,7 +274,8 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
             sched.step(crit)
         history.append({"epoch": epoch + 1, "loss": kind, "train": tot / max(nb, 1), **val})
         writer.writerow([epoch + 1, kind, f"{tot / max(nb, 1):.6f}", f"{val['mse']:.6f}", f"{val['nll']:.6f}",
-                         f"{math.sqrt(val['mse']):.4f}", f"{secs:.2f}", f"{len(order) / secs:.1f}", f"{epoch_lr:.3g}"])
+                         f"{math.sqrt(val['mse']):.4f}", f"{secs:.2f}", f"{len(order) / secs:.1f}", f"{epoch_lr:.3g}",
+                         f"{val['ade']:.4f}"])
         if crit < best:
             best, best_epoch, stale = crit, epoch + 1, 0
             save_checkpoint(net, out / "model.pt")
@@ -359,7 +371,7 @@ def train_command(args: argparse.Namespace) -> int:
                 lr_schedule=getattr(args, "lr_schedule", "cosine"), patience=getattr(args, "patience", None),
                 device=getattr(args, "device", "auto"), mean_loss=getattr(args, "mean_loss", "ade"),
                 init=getattr(args, "init", None), select=getattr(args, "select", "ade"),
-                augment=getattr(args, "augment", True))
+                augment=getattr(args, "augment", True), scale_jitter=getattr(args, "scale_jitter", 0.0))
     if set(res["config"]["split"]["val"]) & set(res["config"]["split"]["train"]):
         print(f"note: one scene left to train on, so validation (checkpoint choice) used the training scene(s) "
               f"{', '.join(res['config']['split']['train'])}")

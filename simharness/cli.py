@@ -167,6 +167,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "constant velocity); or loss, the epoch's own loss (MSE in the warm-up, then NLL)")
     t.add_argument("--augment", action=argparse.BooleanOptionalAction, default=True,
                    help="mirror a random half of every batch left-right (default on; --no-augment)")
+    t.add_argument("--scale-jitter", type=float, default=0.0, metavar="J",
+                   help="scale every training sample (positions, velocities, sizes, future) by a random factor "
+                        "in [1/(1+J), 1+J]: robust to a video's unknown pixel scale or a scene's walking speed "
+                        "(default 0: off)")
 
     e = cmd("evaluate", "simharness.evaluation:evaluate_command", "score a predictor open-loop on a data set")
     e.add_argument("--data", type=Path, required=True)

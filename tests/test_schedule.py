@@ -69,6 +69,20 @@ def test_early_stopping_keeps_the_best_epochs_weights(data, cache, tmp_path) -> 
     assert len(_log(out)) == res["epochs_run"] and cfg["epochs_run"] == res["epochs_run"]
 
 
+def test_patience_counts_epochs_after_the_warm_up_only(data, cache, tmp_path) -> None:
+    """A learning rate far too high: the warm-up's first epoch stays the best, yet training runs `patience` epochs
+    of the NLL phase before it stops (the first NLL epochs re-fit sigma and may be worse), and log.csv's val_ade
+    is the criterion that picked the checkpoint."""
+    out = tmp_path / "run"
+    res = train(data, "rnn-ed", out, epochs=12, warmup_epochs=2, batch_size=32, max_samples=256, threads=1,
+                progress=False, lr=0.3, lr_schedule="constant", patience=2, cache_dir=cache, seed=1, select="ade")
+    log = _log(out)
+    ades = [res["val_history"][0]["ade"]] + [float(r["val_ade"]) for r in log]
+    assert res["best_epoch"] == int(np.argmin(ades)) and res["best_val"] == pytest.approx(min(ades), rel=1e-3)
+    assert res["best_epoch"] < 2  # too high a rate: nothing after the warm-up's first epoch is better
+    assert res["epochs_run"] == 2 + 2  # two warm-up epochs, then `patience` NLL epochs, not fewer
+
+
 def test_plateau_schedule_halves_when_validation_stalls(data, cache, tmp_path) -> None:
     train(data, "rnn-ed", tmp_path / "run", epochs=10, warmup_epochs=0, batch_size=32, max_samples=256, threads=1,
           progress=False, lr=0.3, lr_schedule="plateau", cache_dir=cache, seed=1)
