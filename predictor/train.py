@@ -138,11 +138,11 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
     of random ones (fine-tuning, e.g. sim-to-real): a run folder, or "shipped" for predictor/weights/<model>; its
     model and model config must be this run's (`init_weights`). select: the validation criterion that picks the
     checkpoint: "loss" (the epoch's own loss: MSE in the warm-up, then NLL), or "mse" / "ade" (the means' squared or
-    Euclidean error over every epoch, the starting weights included: a residual model starts as constant
-    velocity, so it ends no worse than constant velocity on the validation split). augment: mirror a random half
-    of every batch (predictor.augment). scale_jitter: scale every training sample by a log-uniform factor in
-    [1 / (1 + j), 1 + j] (0: off; predictor.augment.scale_batch). Writes out/model.pt (the best epoch's weights),
-    out/config.json, out/log.csv. Returns
+    Euclidean error over the epochs whose sigma is fitted: those after the warm-up, and the starting weights when
+    they come from a trained run (`init`); a warm-up checkpoint's untrained sigma made planners collide).
+    augment: mirror a random half of every batch (predictor.augment). scale_jitter: scale every training sample by
+    a log-uniform factor in [1 / (1 + j), 1 + j] (0: off; predictor.augment.scale_batch). Writes out/model.pt (the
+    best epoch's weights), out/config.json, out/log.csv. Returns
     {"best_epoch", "best_val", "val_history", "epochs_run", "train_samples", "samples_per_s", ...}.
     """
     import torch
@@ -223,8 +223,14 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
     writer.writerow(["epoch", "loss", "train_loss", "val_mse", "val_nll", "val_rmse_m", "seconds", "samples_per_s",
                      "lr", "val_ade"])
     best, best_epoch, stale = math.inf, -1, 0
+
+    def fitted(epoch: int) -> bool:
+        """Whether the weights after `epoch` may be kept: planners read the forecasts' sigma, which only the NLL
+        phase fits, so the warm-up's epochs and fresh starting weights are no candidates (unless no NLL phase)."""
+        return select == "loss" or epoch > warmup_epochs or warmup_epochs >= epochs or (epoch == 0 and init is not None)
+
     history = [{"epoch": 0, "loss": "init", "train": math.nan, **_epoch_eval(net, store, val_idx, batch_size, dev)}]
-    if select != "loss" and history[0][select] < best:  # the starting weights are a candidate too
+    if select != "loss" and fitted(0) and history[0][select] < best:  # trained starting weights are a candidate
         best, best_epoch = history[0][select], 0
         save_checkpoint(net, out / "model.pt")
     grids = {"nbr": window.neighbour_grid, "hz": window.horizon_grid}
@@ -276,7 +282,7 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
         writer.writerow([epoch + 1, kind, f"{tot / max(nb, 1):.6f}", f"{val['mse']:.6f}", f"{val['nll']:.6f}",
                          f"{math.sqrt(val['mse']):.4f}", f"{secs:.2f}", f"{len(order) / secs:.1f}", f"{epoch_lr:.3g}",
                          f"{val['ade']:.4f}"])
-        if crit < best:
+        if crit < best and fitted(epoch + 1):
             best, best_epoch, stale = crit, epoch + 1, 0
             save_checkpoint(net, out / "model.pt")
         else:

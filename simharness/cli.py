@@ -163,8 +163,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "whose constant velocity fits the training windows best, up to 5")
     t.add_argument("--select", choices=["loss", "mse", "ade"], default="ade",
                    help="the validation criterion that picks the checkpoint: ade (default) / mse, the means' Euclidean "
-                        "/ squared error over every epoch, the starting weights included (a residual model starts as "
-                        "constant velocity); or loss, the epoch's own loss (MSE in the warm-up, then NLL)")
+                        "/ squared error over the epochs after the warm-up (whose sigma, which planners read, is "
+                        "fitted) and the --init run's weights; or loss, the epoch's own loss (MSE in the warm-up, "
+                        "then NLL)")
     t.add_argument("--augment", action=argparse.BooleanOptionalAction, default=True,
                    help="mirror a random half of every batch left-right (default on; --no-augment)")
     t.add_argument("--scale-jitter", type=float, default=0.0, metavar="J",
