@@ -338,7 +338,7 @@ class FeatureStore:
                 raise UserError(f"scene {scene_ids[s]!r} has dt {scene.dt:g} s, the others {dt:g} s")
             pad = (H - 1) * step
             if not require_future:  # pad history on the left, as far as needed, so partial histories index safely
-                scene = _pad_left(scene, max(0, pad - (scene.num_frames - 1)))
+                scene = pad_left(scene, max(0, pad - (scene.num_frames - 1)))
             n, t = scene.valid.shape
             shapes.append((n, t))
             if targets is None:
@@ -457,7 +457,7 @@ class FeatureStore:
                      agent_type=np.take(a["type"], tgt))
 
 
-def _pad_left(scene: Scene, pad: int) -> Scene:
+def pad_left(scene: Scene, pad: int) -> Scene:
     """`pad` invalid columns before column 0 (histories shorter than the window index safely)."""
     if pad <= 0:
         return scene

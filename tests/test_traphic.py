@@ -8,7 +8,7 @@ from _predictor_data import flow_scene
 from predictor.features import FEATURES, FeatureStore, WindowConfig, to_world
 from predictor.losses import mse
 from predictor.models import build_model
-from predictor.predict import ModelPredictor
+from predictor.predict import ModelPredictor, fill_history
 
 torch.set_num_threads(1)
 
@@ -120,3 +120,43 @@ def test_first_convolution_from_the_agents_equals_the_dense_map(store, layer):
             dense[i, :, cell[i, j]] += (torch.nn.functional.elu(weight(h)) if weight is not None else h)[0]
         want = conv(dense.view(-1, model.cfg.encoder, *grid))
     torch.testing.assert_close(got, want, atol=2e-5, rtol=1e-4)
+
+
+def _straight(n: int = 8, t: int = 15, dt: float = 0.2):
+    """n agents at constant velocity along x (its own speed each), 1.5 m apart laterally."""
+    from simharness.scene import Scene
+
+    speed = np.linspace(3.0, 12.0, n)
+    x = speed[:, None] * np.arange(t)[None] * dt + np.linspace(0, 40, n)[:, None]
+    xy = np.stack([x, np.repeat(np.linspace(-5, 5, n)[:, None], t, 1)], -1)
+    return Scene(xy=xy, heading=np.zeros((n, t)), speed=np.repeat(speed[:, None], t, 1), valid=np.ones((n, t), bool),
+                 agent_id=[f"a{i}" for i in range(n)], agent_type=np.arange(n) % 8, length=np.full(n, 4.0),
+                 width=np.full(n, 1.8), dt=dt)
+
+
+def test_fill_history_extrapolates_back_at_constant_velocity_for_the_targets_only():
+    full = _straight()
+    short = full.slice_frames(12)  # the last 3 frames only
+    short = short.replace(valid=short.valid.copy())
+    short.valid[0, 0] = False  # agent 0 seen for two frames, agent 1 for one: held still
+    short.valid[1, :2] = False
+    filled = fill_history(short, 15, np.array([0, 1, 2]))
+    assert filled.num_frames == 15 and filled.valid[:3].all()
+    np.testing.assert_allclose(filled.xy[0], full.xy[0], atol=1e-4)  # back along its own velocity
+    np.testing.assert_allclose(filled.xy[1], np.repeat(full.xy[1, -1:], 15, 0))
+    np.testing.assert_allclose(filled.xy[2], full.xy[2], atol=1e-4)
+    assert not filled.valid[3, :12].any()  # not a target: left as recorded (padded)
+    assert fill_history(full, 15, np.arange(8)).xy is full.xy  # full histories: nothing to do
+
+
+def test_a_short_history_forecasts_like_the_full_one():
+    """A target seen for a few frames (just appeared, or the first seconds of a closed-loop episode) gets the
+    forecast of its constant-velocity history; the model was trained on full histories only."""
+    torch.manual_seed(0)
+    model = build_model("traphic", {"history": 15, "future": 25}).eval()
+    pred = ModelPredictor(model, WindowConfig(), "traphic")
+    full = _straight()
+    rows = np.arange(8)
+    fa = pred.predict(full, rows, 25)
+    fb = pred.predict(full.slice_frames(13), rows, 25)  # two frames of history
+    np.testing.assert_allclose(fb.mean, fa.mean, atol=1e-3)
