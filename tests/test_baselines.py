@@ -5,6 +5,8 @@ Batches come from the real feature pipeline (predictor.features) over synthetic 
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -139,6 +141,14 @@ def test_gan_step_trains_generator_and_discriminator(batch: dict[str, torch.Tens
     s1, s2 = model.sample(batch, 5, seed=3), model.sample(batch, 5, seed=3)
     assert torch.equal(s1, s2) and s1.shape == (16, 5, 25, 2)
     assert (s1[:, 0] - s1[:, 1]).abs().max() > 1e-4
+    # The one evaluation forecast is the generator at the noise's mean, whatever the sampling seed.
+    one = model(batch)[..., :2]
+    model.cfg = dataclasses.replace(model.cfg, eval_seed=model.cfg.eval_seed + 1)
+    assert torch.equal(model(batch)[..., :2], one)
+    zero = torch.zeros(16, 1, model.cfg.noise_dim)
+    assert torch.equal(one, model._decode(model._context(batch), batch["hist"], 1, z=zero)[:, 0])
+    model.train()
+    assert not torch.equal(model(batch)[..., :2], one)  # training draws the noise
 
 
 def test_gan_predictor_gives_samples_and_best_of_k_takes_the_minimum() -> None:
