@@ -318,7 +318,9 @@ class FeatureStore:
         Training/evaluation (targets None, require_future True): a sample is an agent valid over its whole
         window (history and future) at a "now" every `cfg.stride` frames.
         Inference (targets given per scene, require_future False): one "now" at the last column,
-        the given rows; histories may be partial (missing steps have present = 0).
+        the given rows. A target recorded for less than the window (just appeared, or the first seconds of a
+        closed-loop episode) gets the rest extrapolated back at constant velocity (`fill_history`): the models
+        are trained on full histories only. Other agents' missing steps have present = 0, as in training.
         """
         if not scenes:
             raise UserError("no scenes to build windows from")
@@ -338,7 +340,8 @@ class FeatureStore:
                 raise UserError(f"scene {scene_ids[s]!r} has dt {scene.dt:g} s, the others {dt:g} s")
             pad = (H - 1) * step
             if not require_future:  # pad history on the left, as far as needed, so partial histories index safely
-                scene = pad_left(scene, max(0, pad - (scene.num_frames - 1)))
+                scene = (fill_history(scene, pad + 1, targets[s]) if targets is not None
+                         else _pad_left(scene, pad + 1 - scene.num_frames))
             n, t = scene.valid.shape
             shapes.append((n, t))
             if targets is None:
@@ -457,7 +460,7 @@ class FeatureStore:
                      agent_type=np.take(a["type"], tgt))
 
 
-def pad_left(scene: Scene, pad: int) -> Scene:
+def _pad_left(scene: Scene, pad: int) -> Scene:
     """`pad` invalid columns before column 0 (histories shorter than the window index safely)."""
     if pad <= 0:
         return scene
@@ -465,3 +468,44 @@ def pad_left(scene: Scene, pad: int) -> Scene:
     return scene.replace(xy=np.pad(scene.xy, (*p2, (0, 0))), heading=np.pad(scene.heading, p2),
                          speed=np.pad(scene.speed, p2), valid=np.pad(scene.valid, p2),
                          extra={k: np.pad(v, p2) for k, v in scene.extra.items()}, frame0=scene.frame0 - pad)
+
+
+def fill_history(scene: Scene, frames: int, rows: np.ndarray) -> Scene:
+    """`scene` with the agents `rows` (present at the last column) present in all of its last `frames` columns:
+    the columns before an agent's first recorded frame (left-padded where the scene is shorter) extrapolated
+    back at its velocity between its first two recorded frames (held still where it has only one), its
+    heading, speed and extras held at the first frame's. Gaps after the first frame stay gaps.
+
+    scene: (N, T) agents x frames; frames: columns wanted; rows (M,) int -> Scene (N, max(T, frames)). Other
+    agents (the targets' neighbours) stay as recorded, as in training.
+    """
+    scene = _pad_left(scene, frames - scene.num_frames)
+    t = scene.num_frames
+    cols = np.arange(t)
+    valid = scene.valid
+    first = np.where(valid.any(1), valid.argmax(1), t)  # (N,) first recorded column, t where none
+    rows = np.asarray(rows, np.int64)
+    rows = rows[valid[rows, -1] & (first[rows] > t - frames)]
+    if rows.size == 0:
+        return scene
+    f = first[rows]
+    later = valid[rows] & (cols[None] > f[:, None])
+    two = later.any(1)
+    s = np.where(two, later.argmax(1), f)  # second recorded column (the first where there is none)
+    xy = scene.xy[rows]
+    r = np.arange(rows.size)
+    vel = np.where(two[:, None], (xy[r, s] - xy[r, f]) / np.maximum(s - f, 1)[:, None], 0.0)  # per column
+    fill = (cols[None] < f[:, None]) & (cols[None] >= t - frames)  # (R, T)
+    back = (f[:, None] - cols[None]).astype(np.float32)
+    out = {"xy": scene.xy.copy(), "heading": scene.heading.copy(), "speed": scene.speed.copy(),
+           "valid": valid.copy()}
+    out["xy"][rows] = np.where(fill[..., None], xy[r, f][:, None] - back[..., None] * vel[:, None], xy)
+    for key in ("heading", "speed"):
+        out[key][rows] = np.where(fill, getattr(scene, key)[rows, f][:, None], getattr(scene, key)[rows])
+    out["valid"][rows] |= fill
+    extra = {}
+    for key, a in scene.extra.items():
+        a = a.copy()
+        a[rows] = np.where(fill, a[rows, f][:, None], a[rows])
+        extra[key] = a
+    return scene.replace(extra=extra, **out)

@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 
 from predictor.checkpoint import load_checkpoint
-from predictor.features import FeatureStore, WindowConfig, pad_left, to_world
+from predictor.features import FeatureStore, WindowConfig, to_world
 from simharness.scene import Forecast, Scene
 
 WEIGHTS = Path(__file__).parent / "weights"
@@ -52,10 +52,6 @@ class ModelPredictor:
         absent = targets[~history.valid[targets, -1]]
         if absent.size:
             raise ValueError(f"targets {history.agent_id[absent][:5].tolist()} are not present at the last frame")
-        # Trained on targets with full histories only: a target seen for less than the window (just appeared, or
-        # the first seconds of a closed-loop episode) is given one, extrapolated back at constant velocity.
-        frames = (self.window.frames(history.dt)[0] - 1) * self.window.step(history.dt) + 1
-        history = fill_history(history, frames, targets)
         store = FeatureStore.build([history], ["history"], self.window, targets=[targets], require_future=False)
         batch = store.batch(np.arange(len(targets)))
         inputs = batch.tensors()
@@ -99,44 +95,3 @@ class ModelPredictor:
         gaussian = getattr(self.model, "gaussian", True)  # False: the model gives samples, not a density
         return Forecast(agent_id=history.agent_id[targets], mean=mean.astype(np.float32), dt=history.dt,
                         sigma_rho=sigma_rho.astype(np.float32) if gaussian else None, modes=modes)
-
-
-def fill_history(scene: Scene, frames: int, rows: np.ndarray) -> Scene:
-    """`scene` with the agents `rows` (present at the last column) present in all of its last `frames` columns:
-    the columns before an agent's first recorded frame (left-padded where the scene is shorter) extrapolated
-    back at its velocity between its first two recorded frames (held still where it has only one), its
-    heading, speed and extras held at the first frame's. Gaps after the first frame stay gaps.
-
-    scene: (N, T) agents x frames; frames: columns wanted; rows (M,) int -> Scene (N, max(T, frames)). Other
-    agents (the targets' neighbours) stay as recorded, as in training.
-    """
-    scene = pad_left(scene, frames - scene.num_frames)
-    t = scene.num_frames
-    cols = np.arange(t)
-    valid = scene.valid
-    first = np.where(valid.any(1), valid.argmax(1), t)  # (N,) first recorded column, t where none
-    rows = np.asarray(rows, np.int64)
-    rows = rows[valid[rows, -1] & (first[rows] > t - frames)]
-    if rows.size == 0:
-        return scene
-    f = first[rows]
-    later = valid[rows] & (cols[None] > f[:, None])
-    two = later.any(1)
-    s = np.where(two, later.argmax(1), f)  # second recorded column (the first where there is none)
-    xy = scene.xy[rows]
-    r = np.arange(rows.size)
-    vel = np.where(two[:, None], (xy[r, s] - xy[r, f]) / np.maximum(s - f, 1)[:, None], 0.0)  # per column
-    fill = (cols[None] < f[:, None]) & (cols[None] >= t - frames)  # (R, T)
-    back = (f[:, None] - cols[None]).astype(np.float32)
-    out = {"xy": scene.xy.copy(), "heading": scene.heading.copy(), "speed": scene.speed.copy(),
-           "valid": valid.copy()}
-    out["xy"][rows] = np.where(fill[..., None], xy[r, f][:, None] - back[..., None] * vel[:, None], xy)
-    for key in ("heading", "speed"):
-        out[key][rows] = np.where(fill, getattr(scene, key)[rows, f][:, None], getattr(scene, key)[rows])
-    out["valid"][rows] |= fill
-    extra = {}
-    for key, a in scene.extra.items():
-        a = a.copy()
-        a[rows] = np.where(fill, a[rows, f][:, None], a[rows])
-        extra[key] = a
-    return scene.replace(extra=extra, **out)

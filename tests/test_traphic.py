@@ -5,10 +5,10 @@ import pytest
 import torch
 from _predictor_data import flow_scene
 
-from predictor.features import FEATURES, FeatureStore, WindowConfig, to_world
+from predictor.features import FEATURES, FeatureStore, WindowConfig, fill_history, to_world
 from predictor.losses import mse
 from predictor.models import build_model
-from predictor.predict import ModelPredictor, fill_history
+from predictor.predict import ModelPredictor
 
 torch.set_num_threads(1)
 
