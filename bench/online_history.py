@@ -21,7 +21,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from simharness.cli import parse_seeds  # noqa: E402
 from simharness.closedloop.config import LoopConfig  # noqa: E402
 from simharness.closedloop.episode import make_planner, prepare_spec, simulate  # noqa: E402
-from simharness.planners import rows_of  # noqa: E402
+from simharness.closedloop.scoring import issued_truth  # noqa: E402
 from simharness.predictors import load_predictor  # noqa: E402
 from simharness.scenario import load_scenario  # noqa: E402
 
@@ -36,20 +36,16 @@ def errors_by_history(scenario: str, predictor: str, seeds: list[int]) -> dict[t
     bins: dict[tuple[str, str], list[float]] = {}
     for seed in seeds:
         scene, issued, _, _ = simulate(spec, seed, pred, make_planner(predictor, spec, None), cfg)
-        horizon = min(f.horizon for f in issued.forecasts)
-        for k, f in zip(issued.frames, issued.forecasts, strict=True):
-            rows = rows_of(scene.agent_id, f.agent_id)
-            cols = k + 1 + np.arange(horizon)
-            inside = cols < scene.num_frames
-            cols = cols[inside]
-            seen = scene.valid[np.maximum(rows, 0), max(0, k + 1 - hist):k + 1].sum(1)  # (M,) frames recorded
-            far = np.linalg.norm(scene.xy[np.maximum(rows, 0), k] - scene.xy[scene.ego, k], axis=-1) >= NEAR_M
-            ok = (rows[:, None] >= 0) & scene.valid[np.maximum(rows, 0)][:, cols]  # (M, F')
-            err = np.linalg.norm(f.mean[:, :horizon][:, inside] - scene.xy[np.maximum(rows, 0)][:, cols], axis=-1)
-            for i in np.flatnonzero(ok.any(1)):
-                key = ("full" if seen[i] >= hist else ("partial, k < history" if k < hist else "partial, later"),
-                       f">= {NEAR_M:g} m" if far[i] else f"< {NEAR_M:g} m")
-                bins.setdefault(key, []).append(float(err[i][ok[i]].mean()))
+        mean, truth, valid, rows, frames = issued_truth(scene, issued)
+        r = np.maximum(rows, 0)
+        recorded = np.concatenate([np.zeros((scene.num_agents, 1), int), np.cumsum(scene.valid, 1)], 1)  # (N, T + 1)
+        seen = recorded[r, frames + 1] - recorded[r, np.maximum(frames + 1 - hist, 0)]  # frames in each history
+        far = np.linalg.norm(scene.xy[r, frames] - scene.xy[scene.ego, frames], axis=-1) >= NEAR_M
+        err = np.linalg.norm(mean - truth, axis=-1)
+        for i in np.flatnonzero(valid.any(1)):
+            key = ("full" if seen[i] >= hist else ("partial, k < history" if frames[i] < hist else "partial, later"),
+                   f">= {NEAR_M:g} m" if far[i] else f"< {NEAR_M:g} m")
+            bins.setdefault(key, []).append(float(err[i][valid[i]].mean()))
     return bins
 
 

@@ -151,26 +151,36 @@ def score_episode(scene: Scene, issued: Issued, config: LoopConfig) -> dict[str,
     return out
 
 
-def online_errors(scene: Scene, issued: Issued) -> dict[str, Any]:
-    """Each issued forecast against what the agents did next: ADE/FDE both ways, overall and per type."""
-    keys = ("online_ade", "online_fde", "online_ade_rmse", "online_fde_rmse")
-    if not issued.forecasts:
-        return {**dict.fromkeys(keys, math.nan), "online_samples": 0, "online_by_type": {}}
+def issued_truth(scene: Scene, issued: Issued) -> tuple[np.ndarray, ...]:
+    """Every target of every issued forecast beside what it then did, over the shortest forecast's horizon F.
+
+    -> pred, truth (S, F, 2) m; valid (S, F) bool (recorded, inside the episode); rows (S,) int, the target's row in
+    `scene` (-1 where it is not there: valid all False); frames (S,) int, the frame the forecast was made at.
+    """
     horizon = min(f.horizon for f in issued.forecasts)
-    preds, truths, valids, types = [], [], [], []
+    preds, truths, valids, rows_all, frames = [], [], [], [], []
     for k, f in zip(issued.frames, issued.forecasts, strict=True):  # one entry per forecast, arrays inside
         rows = rows_of(scene.agent_id, f.agent_id)
         cols = k + 1 + np.arange(horizon)
         inside = cols < scene.num_frames
         cc = np.minimum(cols, scene.num_frames - 1)
-        ok = (rows[:, None] >= 0) & inside[None] & scene.valid[np.maximum(rows, 0)][:, cc]
         preds.append(f.mean[:, :horizon])
         truths.append(scene.xy[np.maximum(rows, 0)][:, cc])
-        valids.append(ok)
-        types.append(scene.agent_type[np.maximum(rows, 0)])
-    pred, truth, valid = np.concatenate(preds), np.concatenate(truths), np.concatenate(valids)
+        valids.append((rows[:, None] >= 0) & inside[None] & scene.valid[np.maximum(rows, 0)][:, cc])
+        rows_all.append(rows)
+        frames.append(np.full(rows.size, k))
+    return tuple(np.concatenate(a) for a in (preds, truths, valids, rows_all, frames))
+
+
+def online_errors(scene: Scene, issued: Issued) -> dict[str, Any]:
+    """Each issued forecast against what the agents did next: ADE/FDE both ways, overall and per type."""
+    keys = ("online_ade", "online_fde", "online_ade_rmse", "online_fde_rmse")
+    if not issued.forecasts:
+        return {**dict.fromkeys(keys, math.nan), "online_samples": 0, "online_by_type": {}}
+    pred, truth, valid, rows, _ = issued_truth(scene, issued)
     s = displacement.summary(pred, truth, valid)
-    groups = displacement.by_group(pred, truth, valid, np.concatenate(types), {t.value: t.label for t in AgentType})
+    groups = displacement.by_group(pred, truth, valid, scene.agent_type[np.maximum(rows, 0)],
+                                   {t.value: t.label for t in AgentType})
     return {"online_ade": s["ade"], "online_fde": s["fde"], "online_ade_rmse": s["ade_rmse"],
             "online_fde_rmse": s["fde_rmse"], "online_samples": s["samples"], "online_by_type": groups}
 
