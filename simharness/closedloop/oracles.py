@@ -29,8 +29,11 @@ picklable `_Drive`): one message per stretch, not a round trip per frame. Where 
 self-defeating forecast: told that a scooter cuts in, the ego holds back and the scooter does
 not cut in; told it does not, the ego closes up and it does) the iteration cycles (a round repeats an
 earlier one, or the ego's command at the first differing frame flips back to an earlier round's); the oracle
-stops there (`cycles`) or after `max_iterations` (`unconverged`) and the forecast is inexact for
-those seconds. It checks that the episode did follow the branch (`mismatches`: frames where the
+stops there (`cycles`) or after `max_iterations` (`unconverged`). Its last branch is then what the ego does
+when fed the round before's; the oracle serves that branch's own future (exact) up to the first forecast
+that would make the ego leave it, serves there the blend of the two rounds' futures nearest the branch's
+that keeps the ego on it (`inexact`: one forecast per such branch), and branches again at the next forecast
+from the live state. It checks that the episode did follow the branch (`mismatches`: frames where the
 live state differed from it; each starts a new branch). Its online error is scored like any
 predictor's, so how exact it was is visible in every scorecard.
 
@@ -136,6 +139,24 @@ class Track:
 
 
 @dataclasses.dataclass
+class Blend:
+    """The forecast (1 - w) * `a` + w * `b` of two tracks for the agents `ids` (all when None), `b` for the
+    others (read like a `Track`)."""
+
+    a: Track
+    b: Track
+    w: float
+    ids: np.ndarray | None = None
+
+    def future(self, frame: Frame, targets: np.ndarray, k: int, horizon: int, dt: float) -> np.ndarray:
+        """(M, horizon, 2) float32: see `Track.future`."""
+        fa, fb = self.a.future(frame, targets, k, horizon, dt), self.b.future(frame, targets, k, horizon, dt)
+        w = np.where(np.isin(frame.agent_id[targets], self.ids), self.w, 1.0) if self.ids is not None else self.w
+        w = np.reshape(w, (-1, 1, 1))
+        return ((1 - w) * fa + w * fb).astype(np.float32)
+
+
+@dataclasses.dataclass
 class _Rollout:
     """One branch rolled ahead from episode frame k: frames[i] is frame k + i, commands[i] the ego's there.
 
@@ -167,11 +188,14 @@ class BranchOracle:
     only: no round resumes later); checkpoint_every: frames between the ego states that the check restarts from.
     `serve`: where the live planner is served degraded forecasts (`perturbations.Degrader`), the branches'
     egos are served the same (a copy of it, deterministic per frame and agent).
-    `stats`: branches, iterations, cycles (no fixed point), unconverged, mismatches (see the module docstring).
+    bisections: halvings of the blend weight served where no fixed point exists.
+    `stats`: branches, iterations, cycles (no fixed point), unconverged, inexact (blends served), mismatches (see
+    the module docstring).
     """
 
     def __init__(self, dt: float, horizon: int, plan_frames: int, radius: float, window: int,
-                 max_iterations: int = 4, snapshot_every: int = 10, checkpoint_every: int = 5) -> None:
+                 max_iterations: int = 4, snapshot_every: int = 10, checkpoint_every: int = 5,
+                 bisections: int = 6) -> None:
         self.dt, self.horizon, self.plan_frames, self.radius = dt, horizon, plan_frames, radius
         self.window = max(window, horizon + 2 * plan_frames + 1)
         self.max_iterations = max_iterations
@@ -180,11 +204,15 @@ class BranchOracle:
         self.serve: Any = None
         self.track: Track | None = None
         self.last: _Rollout | None = None
-        self.stats = {"branches": 0, "iterations": 0, "cycles": 0, "unconverged": 0, "mismatches": 0}
+        self.until: int | None = None  # where no fixed point exists: the last frame this branch serves ...
+        self.blend: Blend | None = None  # ... and what it serves there
+        self.bisections = bisections
+        self.stats = {"branches": 0, "iterations": 0, "cycles": 0, "unconverged": 0, "inexact": 0, "mismatches": 0}
 
     def forecast(self, k: int, frame: Frame, sim: Any, planner: Planner, clock: LoopClock) -> Forecast | None:
         """The others' true future at frame k of the live episode (sim, planner, clock: its live state)."""
         fresh = self.track is not None and self.track.end - k >= self.horizon + 2 * self.plan_frames
+        fresh = fresh and (self.until is None or k <= self.until)
         if fresh and not self.track.matches(frame, k):
             self.stats["mismatches"] += 1
             fresh = False
@@ -193,7 +221,8 @@ class BranchOracle:
             if self.stats["branches"] == 0 and hasattr(sim, "rollout"):  # the worker imports the ego's code
                 sim.rollout(self._driver(k, (planner, clock, self.serve), Track.of([frame], k)), frame, 0, 0)  # once
             self._branch_out(k, frame, sim, planner, clock)
-        return _forecast_from(self.track, frame, k, self.dt, self.horizon, self.radius)
+        return _forecast_from(self.blend if k == self.until else self.track, frame, k, self.dt, self.horizon,
+                              self.radius)
 
     def close(self) -> None:
         """Close the kept branch's snapshots (end of the episode)."""
@@ -214,6 +243,7 @@ class BranchOracle:
         where it was verified rather than re-rolled: both exactly what re-rolling from the live state gives.
         """
         guess = self.track if self.track is not None else Track.of([frame], k)
+        self.until, self.blend = None, None
         # The forecasts this branch will serve need the others' truth up to window - 2 planning horizons,
         # hence the ego's commands up to there; later ones rest on forecasts extrapolated past the window.
         settled = self.window - 2 * self.plan_frames
@@ -228,6 +258,7 @@ class BranchOracle:
                 roll = self._extend(_Rollout(k, [frame], [], {}, {0: ego}), first, self._copy(ego), guess)
             finally:
                 first.close()
+        fed = guess  # the forecasts this round's ego was driven on
         for it in range(self.max_iterations):
             self.stats["iterations"] += 1
             track = Track.of(roll.frames, k)
@@ -244,8 +275,63 @@ class BranchOracle:
             if it == self.max_iterations - 1:
                 self.stats["unconverged"] += 1
                 break
-            roll = self._resume(roll, d, command, after, track)
+            roll, fed = self._resume(roll, d, command, after, track), track
         self.track, self.last = Track.of(roll.frames, k), roll
+        if roll.verified is None:  # no fixed point: the truth up to the forecast that would defeat itself
+            served = self._serve(roll, self.track, fed, settled)
+            if served is not None:
+                self.until, self.blend = served
+                self.stats["inexact"] += 1
+
+    def _serve(self, roll: _Rollout, truth: Track, fed: Track, settled: int) -> tuple[int, Blend] | None:
+        """Where no fixed point was found: the first episode frame whose forecast, read from the branch itself
+        (`truth`), would make the ego leave the branch, and what to serve there instead, a `Blend` of `fed`
+        (what the branch's ego was driven on, which keeps it there) and `truth`: `fed` for one agent or for all,
+        each weight bisected towards the truth while it keeps the ego on the branch; the one whose forecast ends
+        nearest the truth. None where even `fed` does not. Every forecast before that frame is exact whatever
+        comes after, since the ego's commands up to there are the branch's; the oracle branches again at the
+        next forecast, from the live state (the ego's choice there made).
+        """
+        ego, i = self._copy(roll.checkpoints[0]), 0
+        while i < settled:
+            saved = self._copy(ego)
+            nxt = self._segment(roll, ego, i, settled, truth)
+            if nxt is not None:
+                i = nxt
+                continue
+            frame = roll.frames[i]
+            rows = near_targets(frame, self.radius)
+            gap = np.linalg.norm(fed.future(frame, rows, roll.k + i, self.horizon, self.dt)[:, -1]
+                                 - truth.future(frame, rows, roll.k + i, self.horizon, self.dt)[:, -1], axis=-1)
+            # Most self-defeating forecasts turn on one agent: try `fed` for each that differs, then for all.
+            options = [(frame.agent_id[rows[[m]]], gap[m]) for m in np.flatnonzero(gap > 0)] + [(None, gap.sum())]
+            best: tuple[float, Blend] | None = None
+            for ids, cost in options:
+                if best is not None and cost >= best[0]:
+                    continue
+                if self._segment(roll, self._copy(saved), i, settled, Blend(fed, truth, 0.0, ids)) is None:
+                    continue
+                lo, hi = 0.0, 1.0  # weights of the truth that keep the branch / leave it
+                for _ in range(self.bisections):
+                    mid = (lo + hi) / 2
+                    ok = self._segment(roll, self._copy(saved), i, settled, Blend(fed, truth, mid, ids))
+                    lo, hi = (mid, hi) if ok is not None else (lo, mid)
+                if best is None or (1 - lo) * cost < best[0]:
+                    best = ((1 - lo) * cost, Blend(fed, truth, lo, ids))
+            return None if best is None else (roll.k + i, best[1])
+        return None
+
+    def _segment(self, roll: _Rollout, ego: tuple, i: int, settled: int, track: Track) -> int | None:
+        """Drive the ego (advanced in place) over the branch from frame index i, forecasts read from `track`,
+        up to the next frame a forecast is due: that frame index (settled at most), None where a command differs
+        from the branch's."""
+        while True:
+            command = _drive(roll.k + i, roll.k, roll.frames[i], ego, track, self.dt, self.horizon, self.radius)
+            if command != roll.commands[i]:
+                return None
+            i += 1
+            if i >= settled or ego[1].due(roll.k + i):
+                return i
 
     def _slide(self, k: int, frame: Frame, sim: Any, ego: tuple, guess: Track) -> _Rollout | None:
         """The last branch continued from where it was verified, as the branch from live frame k (None where
@@ -343,7 +429,8 @@ class BranchOracle:
         return copy.deepcopy(state, {} if road is None else {id(road): road})
 
 
-def _forecast_from(track: Track, frame: Frame, k: int, dt: float, horizon: int, radius: float) -> Forecast | None:
+def _forecast_from(track: Track | Blend, frame: Frame, k: int, dt: float, horizon: int,
+                   radius: float) -> Forecast | None:
     """The forecast at frame k of the agents within `radius` of the ego, read from `track`."""
     rows = near_targets(frame, radius)
     if rows.size == 0:
@@ -351,7 +438,7 @@ def _forecast_from(track: Track, frame: Frame, k: int, dt: float, horizon: int, 
     return Forecast(agent_id=frame.agent_id[rows], mean=track.future(frame, rows, k, horizon, dt), dt=dt)
 
 
-def _drive(j: int, k: int, f: Frame, ego: tuple, guess: Track, dt: float, horizon: int,
+def _drive(j: int, k: int, f: Frame, ego: tuple, guess: Track | Blend, dt: float, horizon: int,
            radius: float) -> EgoCommand | None:
     """The ego's command at frame j of a branch started at frame k, forecasts read from `guess`; ego: its driving
     state (planner, clock, degrader or None), advanced."""
