@@ -42,7 +42,8 @@ from simharness.io.folders import is_dataset_folder  # noqa: E402
 TRAF_A = ["TRAF11", "TRAF13", "TRAF15", "TRAF21", "TRAF23", "TRAF26", "TRAF37", "TRAF53_1", "TRAF53_2", "TRAF53_3"]
 TRAF_B = ["TRAF12", "TRAF17", "TRAF18", "TRAF22", "TRAF25", "TRAF27", "TRAF38"]
 LABEL = {"const-vel": "Constant velocity", "traphic": "TraPHic", "cs-lstm": "CS-LSTM",
-         "traphic-init": "TraPHic, pre-trained on synthetic + fine-tuned", "traphic-scratch": "TraPHic, real data only"}
+         "traphic-init": "TraPHic, pre-trained on synthetic + fine-tuned", "traphic-scratch": "TraPHic, real data only",
+         "traphic-b": "TraPHic-B (no neighbours)", "traphic-he": "TraPHic-He", "traphic-ho": "TraPHic-Ho"}
 
 
 def sh(*args: str) -> None:
@@ -177,6 +178,7 @@ def main() -> int:
                     help="sim2real's pre-trained weights: shipped (the paper's form, as shipped) or a run folder of a "
                          "residual TraPHic trained on `simharness generate` data (then both arms are residual)")
     ap.add_argument("--train-args", default="", help="more `simharness train` options for every run, e.g. '--augment'")
+    ap.add_argument("--traf-models", default="traphic,cs-lstm", help="models trained on TRAF (`train --model`)")
     ap.add_argument("--score-only", action="store_true", help="train nothing; score the runs already finished")
     args = ap.parse_args()
     parts = args.parts.split(",")
@@ -204,7 +206,7 @@ def main() -> int:
             held = ["--test-scenes", ",".join(t + "_gt" for t in test)]
             tag = fold.replace("->", "to")
             if "traf" in parts:
-                for model in ("traphic", "cs-lstm"):
+                for model in args.traf_models.split(","):
                     run = args.out / "traf" / f"{model}-{tag}-s{seed}"
                     jobs.append((run, ["--data", str(paths["traf"]), "--model", model, *held, *budget, *s]))
                     plan.setdefault("traf", {}).setdefault(fold, {}).setdefault(model, []).append(run)
