@@ -30,7 +30,7 @@ self-defeating forecast: told that a scooter cuts in, the ego holds back and the
 not cut in; told it does not, the ego closes up and it does) the iteration cycles (a round repeats an
 earlier one, or the ego's command at the first differing frame flips back to an earlier round's); the oracle
 stops there (`cycles`) or after `max_iterations` (`unconverged`). Its last branch is then what the ego does
-when fed the round before's; the oracle serves that branch's own future (exact) up to the first forecast
+when fed the round before it; the oracle serves that branch's own future (exact) up to the first forecast
 that would make the ego leave it, serves there the blend of the two rounds' futures nearest the branch's
 that keeps the ego on it (`inexact`: one forecast per such branch), and branches again at the next forecast
 from the live state. It checks that the episode did follow the branch (`mismatches`: frames where the
@@ -321,7 +321,7 @@ class BranchOracle:
             return None if best is None else (roll.k + i, best[1])
         return None
 
-    def _segment(self, roll: _Rollout, ego: tuple, i: int, settled: int, track: Track) -> int | None:
+    def _segment(self, roll: _Rollout, ego: tuple, i: int, settled: int, track: Track | Blend) -> int | None:
         """Drive the ego (advanced in place) over the branch from frame index i, forecasts read from `track`,
         up to the next frame a forecast is due: that frame index (settled at most), None where a command differs
         from the branch's."""
