@@ -497,15 +497,14 @@ def fill_history(scene: Scene, frames: int, rows: np.ndarray) -> Scene:
     vel = np.where(two[:, None], (xy[r, s] - xy[r, f]) / np.maximum(s - f, 1)[:, None], 0.0)  # per column
     fill = (cols[None] < f[:, None]) & (cols[None] >= t - frames)  # (R, T)
     back = (f[:, None] - cols[None]).astype(np.float32)
-    out = {"xy": scene.xy.copy(), "heading": scene.heading.copy(), "speed": scene.speed.copy(),
-           "valid": valid.copy()}
-    out["xy"][rows] = np.where(fill[..., None], xy[r, f][:, None] - back[..., None] * vel[:, None], xy)
-    for key in ("heading", "speed"):
-        out[key][rows] = np.where(fill, getattr(scene, key)[rows, f][:, None], getattr(scene, key)[rows])
-    out["valid"][rows] |= fill
-    extra = {}
-    for key, a in scene.extra.items():
+
+    def hold(a: np.ndarray) -> np.ndarray:  # (N, T): the targets' filled columns at their first frame's value
         a = a.copy()
         a[rows] = np.where(fill, a[rows, f][:, None], a[rows])
-        extra[key] = a
-    return scene.replace(extra=extra, **out)
+        return a
+
+    out_xy, out_valid = scene.xy.copy(), valid.copy()
+    out_xy[rows] = np.where(fill[..., None], xy[r, f][:, None] - back[..., None] * vel[:, None], xy)
+    out_valid[rows] |= fill
+    return scene.replace(xy=out_xy, valid=out_valid, heading=hold(scene.heading), speed=hold(scene.speed),
+                         extra={k: hold(v) for k, v in scene.extra.items()})
