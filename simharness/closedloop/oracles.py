@@ -278,21 +278,24 @@ class BranchOracle:
             roll, fed = self._resume(roll, d, command, after, track), track
         self.track, self.last = Track.of(roll.frames, k), roll
         if roll.verified is None:  # no fixed point: the truth up to the forecast that would defeat itself
-            served = self._serve(roll, self.track, fed, settled)
+            served = self._serve(roll, self.track, fed, settled, d)
             if served is not None:
                 self.until, self.blend = served
                 self.stats["inexact"] += 1
 
-    def _serve(self, roll: _Rollout, truth: Track, fed: Track, settled: int) -> tuple[int, Blend] | None:
+    def _serve(self, roll: _Rollout, truth: Track, fed: Track, settled: int, d: int) -> tuple[int, Blend] | None:
         """Where no fixed point was found: the first episode frame whose forecast, read from the branch itself
         (`truth`), would make the ego leave the branch, and what to serve there instead, a `Blend` of `fed`
         (what the branch's ego was driven on, which keeps it there) and `truth`: `fed` for one agent or for all,
         each weight bisected towards the truth while it keeps the ego on the branch; the one whose forecast ends
         nearest the truth. None where even `fed` does not. Every forecast before that frame is exact whatever
         comes after, since the ego's commands up to there are the branch's; the oracle branches again at the
-        next forecast, from the live state (the ego's choice there made).
+        next forecast, from the live state (the ego's choice there made). d: the first frame index where the check
+        (the same drive on `truth`) found the ego leaving the branch; the drive restarts from the check's latest
+        ego state before it at which a forecast is due.
         """
-        ego, i = self._copy(roll.checkpoints[0]), 0
+        i = max(j for j, (_, clock, _) in roll.checkpoints.items() if j <= d and clock.due(roll.k + j))
+        ego = self._copy(roll.checkpoints[i])
         while i < settled:
             saved = self._copy(ego)
             nxt = self._segment(roll, ego, i, settled, truth)
