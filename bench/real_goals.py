@@ -1,12 +1,15 @@
 """Issue 14's goals on the real samples (../shared/data), measured end to end with `simharness` commands.
 
-    python bench/real_goals.py                              # all four parts, 2 seeds (about 30 min on 2 shared cores)
+    python bench/real_goals.py                              # all five parts, 2 seeds (about 30 min on 2 shared cores)
     python bench/real_goals.py --parts traf,sim2real --reuse  # some parts; keep finished runs
 
 Parts (each prints a markdown table; the numbers in docs/results.md "Issue 14: real data" come from here):
 - eth: ETH/UCY leave-one-scene-out over the scenes in ../shared/data/eth_ucy, each fold laid out as Social-GAN
   does (test/<held>.txt; train/<other>_train.txt and val/<other>_val.txt, the first 80% / last 20% of each other
   scene's lines), so training validates on the `*_val` files; TraPHic vs constant velocity, `eth-ucy` protocol.
+- eth-halves: the same with each scene cut in two halves in time (SCENE_a, SCENE_b), one half held out per fold,
+  so that every fold trains on a scene of the held-out one's kind, as the five-scene split does (a proxy for it:
+  the halves share a place and a camera).
 - traf: every TRAF video (imported with --type-default car --pixel-scale 0.03), two disjoint groups of videos,
   trained on one and scored on the other, both directions; TraPHic vs CS-LSTM vs constant velocity.
 - apollo: ApolloScape sample, split by scene hash; TraPHic vs constant velocity with the `apolloscape` protocol.
@@ -144,28 +147,40 @@ def prepare(args: argparse.Namespace) -> dict[str, Path]:
            "--pixel-scale", "0.03")
     if not is_dataset_folder(d / "apollo"):
         sh("import", "apolloscape", str(SHARED / "apolloscape"), "--out", str(d / "apollo"))
-    scenes = sorted(p.stem for p in (SHARED / "eth_ucy").glob("*.txt"))
-    for held in scenes:
-        src, out = d / "eth-src" / held, d / f"eth-not-{held}"
-        paths[f"eth:{held}"] = out
-        if is_dataset_folder(out):
-            continue
-        for sub in ("train", "val", "test"):
-            (src / sub).mkdir(parents=True, exist_ok=True)
-        (src / "test" / f"{held}.txt").write_text((SHARED / "eth_ucy" / f"{held}.txt").read_text())
-        for other in scenes:
-            if other != held:
-                lines = (SHARED / "eth_ucy" / f"{other}.txt").read_text().splitlines(keepends=True)
-                cut = int(len(lines) * 0.8)
-                (src / "train" / f"{other}_train.txt").write_text("".join(lines[:cut]))
-                (src / "val" / f"{other}_val.txt").write_text("".join(lines[cut:]))
-        sh("import", "eth-ucy", str(src / "train"), str(src / "val"), str(src / "test"), "--out", str(out))
+    whole = {p.stem: p.read_text().splitlines(keepends=True) for p in sorted((SHARED / "eth_ucy").glob("*.txt"))}
+    for part, scenes in (("eth", whole), ("eth-halves", halves(whole))):
+        for held in scenes:
+            src, out = d / f"{part}-src" / held, d / f"{part}-not-{held}"
+            paths[f"{part}:{held}"] = out
+            if is_dataset_folder(out):
+                continue
+            for sub in ("train", "val", "test"):
+                (src / sub).mkdir(parents=True, exist_ok=True)
+            (src / "test" / f"{held}.txt").write_text("".join(scenes[held]))
+            for other, lines in scenes.items():
+                if other != held:
+                    cut = int(len(lines) * 0.8)
+                    (src / "train" / f"{other}_train.txt").write_text("".join(lines[:cut]))
+                    (src / "val" / f"{other}_val.txt").write_text("".join(lines[cut:]))
+            sh("import", "eth-ucy", str(src / "train"), str(src / "val"), str(src / "test"), "--out", str(out))
     return paths
+
+
+def halves(scenes: dict[str, list[str]]) -> dict[str, list[str]]:
+    """Each ETH/UCY scene's lines cut at its median frame into SCENE_a and SCENE_b: leaving one half out, every
+    fold still trains on a scene of its kind (annotation, place), as the five-scene split does (eth for hotel,
+    univ and zara02 for zara01), which leaving one of only two whole scenes out cannot show."""
+    out = {}
+    for name, lines in scenes.items():
+        mid = np.median([float(line.split()[0]) for line in lines])
+        out[f"{name}_a"] = [line for line in lines if float(line.split()[0]) < mid]
+        out[f"{name}_b"] = [line for line in lines if float(line.split()[0]) >= mid]
+    return out
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--parts", default="eth,traf,apollo,sim2real")
+    ap.add_argument("--parts", default="eth,eth-halves,traf,apollo,sim2real")
     ap.add_argument("--seeds", default="0,1")
     ap.add_argument("--epochs", type=int, default=6)
     ap.add_argument("--warmup-epochs", type=int, default=2)
@@ -196,12 +211,12 @@ def main() -> int:
     plan: dict[str, dict[str, dict[str, list[Path]]]] = {}  # part -> fold -> method -> runs
     for seed in seeds:
         s = ["--seed", str(seed)]
-        if "eth" in parts:
-            for key, data in paths.items():
-                if key.startswith("eth:"):
-                    run = args.out / "eth" / f"traphic-not-{key[4:]}-s{seed}"
-                    jobs.append((run, ["--data", str(data), "--protocol", "eth-ucy", *budget, *s]))
-                    plan.setdefault("eth", {}).setdefault(key[4:], {}).setdefault("traphic", []).append(run)
+        for key, data in paths.items():
+            part, _, held = key.partition(":")
+            if part in ("eth", "eth-halves") and part in parts:
+                run = args.out / part / f"traphic-not-{held}-s{seed}"
+                jobs.append((run, ["--data", str(data), "--protocol", "eth-ucy", *budget, *s]))
+                plan.setdefault(part, {}).setdefault(held, {}).setdefault("traphic", []).append(run)
         for fold, (_, test) in traf_folds.items():
             held = ["--test-scenes", ",".join(t + "_gt" for t in test)]
             tag = fold.replace("->", "to")
@@ -231,10 +246,10 @@ def main() -> int:
     from predictor.split import split_scenes
 
     for part, folds in plan.items():
-        protocol = {"eth": "eth-ucy", "apollo": "apolloscape"}.get(part, "traphic")
+        protocol = {"eth": "eth-ucy", "eth-halves": "eth-ucy", "apollo": "apolloscape"}.get(part, "traphic")
         scored: dict[str, dict[str, list[dict]]] = {}
         for fold, methods in folds.items():
-            data = paths[f"eth:{fold}"] if part == "eth" else paths["apollo" if part == "apollo" else "traf"]
+            data = paths.get(f"{part}:{fold}") or paths["apollo" if part == "apollo" else "traf"]
             ids = Dataset(data).scene_ids
             test = held_ids[fold] if part in ("traf", "sim2real") else split_scenes(ids)["test"]
             scored[fold] = {m: [per_scene(data, str(r), protocol, test) for r in runs] for m, runs in methods.items()}

@@ -184,9 +184,14 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
     mcfg = {"history": store.H, "future": store.F, "max_neighbours": window.max_neighbours,
             "max_horizon": window.max_horizon, "neighbour_grid": window.neighbour_grid,
             "horizon_grid": window.horizon_grid, **(model_config or {})}
-    if mcfg.get("cv_lags") == "auto" and init is not None:  # fine-tuning continues the network it starts from
+    if init is not None:  # fine-tuning continues the network it starts from: its lags and gate
         theirs = read_config(init_files(model, init)[1])["model_config"]
-        mcfg["cv_lags"] = theirs.get("cv_lags", 1) if isinstance(theirs, dict) else 1
+        theirs = theirs if isinstance(theirs, dict) else {}
+        mcfg["cv_gate"] = theirs.get("cv_gate", False)
+        if mcfg.get("cv_lags") == "auto":
+            mcfg["cv_lags"] = theirs.get("cv_lags", 1)
+    elif mcfg.get("cv_lags") == "auto" and mcfg.get("cv_gate") and mcfg.get("residual"):
+        mcfg["cv_lags"] = min(AUTO_LAGS, store.H - 1)  # each track's blend is learned: offer it every lag
     elif mcfg.get("cv_lags") == "auto":  # the lag whose constant velocity fits the training windows best
         mcfg["cv_lags"] = best_cv_lag(store, train_idx, min(AUTO_LAGS, store.H - 1)) if mcfg.get("residual") else 1
     net = build_model(model, mcfg)
@@ -373,7 +378,8 @@ def train_command(args: argparse.Namespace) -> int:
                 max_val_samples=VAL_SAMPLES, test_scenes=getattr(args, "test_scenes", None),
                 window=protocol_window(getattr(args, "protocol", None)),
                 model_config={"residual": bool(getattr(args, "residual", True)),
-                              "cv_lags": getattr(args, "cv_lags", "auto")},
+                              "cv_lags": getattr(args, "cv_lags", "auto"),
+                              "cv_gate": bool(getattr(args, "cv_gate", True))},
                 lr_schedule=getattr(args, "lr_schedule", "cosine"), patience=getattr(args, "patience", None),
                 device=getattr(args, "device", "auto"), mean_loss=getattr(args, "mean_loss", "ade"),
                 init=getattr(args, "init", None), select=getattr(args, "select", "ade"),

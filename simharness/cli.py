@@ -161,6 +161,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="residual form: extrapolate from the last displacement (1) plus a learned blend of the mean "
                         "displacements over up to N steps (jittery tracks; not Social-GAN); auto (default): the lag "
                         "whose constant velocity fits the training windows best, up to 5")
+    t.add_argument("--cv-gate", action=argparse.BooleanOptionalAction, default=True,
+                   help="residual form: the blend of lags is learned per track from its own jitter (default; smooth "
+                        "the tracks whose noise is in the annotation, extrapolate the steady turns of clean ones), "
+                        "with --cv-lags auto every lag up to 5 offered; --no-cv-gate: one blend for all tracks; with "
+                        "--init, as the run it fine-tunes")
     t.add_argument("--select", choices=["loss", "mse", "ade"], default="ade",
                    help="the validation criterion that picks the checkpoint: ade (default) / mse, the means' Euclidean "
                         "/ squared error over the epochs after the warm-up (whose sigma, which planners read, is "

@@ -140,8 +140,8 @@ def test_lag_blend_starts_as_the_model_it_wraps_and_learns_to_smooth_a_jittery_v
 
 
 def test_cv_lags_auto_follows_the_run_it_fine_tunes(tmp_path) -> None:
-    """--cv-lags auto picks a lag from the training windows, except when fine-tuning (--init), where the network
-    it continues fixes it."""
+    """--cv-lags auto picks a lag from the training windows (every lag up to 5 with the per-track gate), except when
+    fine-tuning (--init), where the network it continues fixes the lags and the gate."""
     from simharness.cli import main
 
     data = str(write_flow_dataset(tmp_path / "data", scenes=5))
@@ -150,5 +150,67 @@ def test_cv_lags_auto_follows_the_run_it_fine_tunes(tmp_path) -> None:
     assert main(["train", *common, "--init", str(tmp_path / "a"), "--out", str(tmp_path / "b")]) == 0
     cfg = json.loads((tmp_path / "b" / "config.json").read_text())
     assert cfg["model_config"]["cv_lags"] == 3 and cfg["train"]["init"]["from"] == str(tmp_path / "a")
-    assert main(["train", *common, "--out", str(tmp_path / "c")]) == 0  # smooth synthetic tracks: the last step
-    assert json.loads((tmp_path / "c" / "config.json").read_text())["model_config"]["cv_lags"] == 1
+    assert json.loads((tmp_path / "a" / "config.json").read_text())["model_config"]["cv_gate"] is True
+    assert main(["train", *common, "--no-cv-gate", "--out", str(tmp_path / "c")]) == 0
+    mc = json.loads((tmp_path / "c" / "config.json").read_text())["model_config"]
+    assert mc["cv_lags"] == 1 and mc["cv_gate"] is False  # one blend: smooth synthetic tracks want the last step
+    assert main(["train", *common, "--out", str(tmp_path / "d")]) == 0  # gated (default): every lag on offer
+    assert json.loads((tmp_path / "d" / "config.json").read_text())["model_config"]["cv_lags"] == 5
+    assert main(["train", *common, "--init", str(tmp_path / "c"), "--out", str(tmp_path / "e")]) == 0
+    assert json.loads((tmp_path / "e" / "config.json").read_text())["model_config"]["cv_gate"] is False
+
+
+def test_track_jitter_tells_annotation_noise_from_a_smooth_turn() -> None:
+    """White position noise: up to 2/3 (its second differences alternate; about 0.5 over 6 of them, the ratio's
+    small-sample bias); a steady turn: -5/6 over 6 (they persist)."""
+    from predictor.features import FEATURES
+    from predictor.models.gaussian import track_jitter
+
+    gen = torch.Generator().manual_seed(0)
+    t = torch.arange(8, dtype=torch.float32)
+    present = FEATURES.index("present")
+    hist = torch.zeros(400, 8, len(FEATURES))
+    hist[..., present] = 1.0
+    hist[:200, :, 0] = t + 0.05 * torch.randn(200, 8, generator=gen)  # walking along x, clicked with 5 cm noise
+    hist[:200, :, 1] = 0.05 * torch.randn(200, 8, generator=gen)
+    hist[200:, :, 0], hist[200:, :, 1] = 5 * torch.sin(t / 5), 5 * (1 - torch.cos(t / 5))  # a 5 m radius turn
+    j = track_jitter(hist)
+    assert 0.4 < float(j[:200].mean()) < 2 / 3 and torch.allclose(j[200:], torch.full((200,), -5 / 6), atol=0.03)
+    hist[:, :3, present] = 0.0  # absent steps carry no second differences
+    assert torch.isfinite(track_jitter(hist)).all()
+
+
+def test_gated_lag_blend_smooths_the_noisy_tracks_and_keeps_the_turning_ones(batch) -> None:
+    """cv_gate: still exactly constant velocity at the start; on a mix of noisy straight tracks (which want a long
+    lag) and clean turning ones (which want the last displacement), fitting the blend per track beats the best
+    blend shared by all."""
+    from predictor.features import FEATURES
+    from predictor.models.gaussian import LagBlend
+
+    cfg = {"history": 15, "future": 25, "residual": True, "cv_lags": 5}
+    torch.manual_seed(0)
+    shared = build_model("rnn-ed", cfg)
+    torch.manual_seed(0)
+    gated = build_model("rnn-ed", {**cfg, "cv_gate": True})
+    assert isinstance(gated, LagBlend) and gated.g is not None and shared.g is None
+    assert torch.equal(shared(batch), gated(batch))
+    gen = torch.Generator().manual_seed(1)
+    n, t, k = len(batch["hist"]), torch.arange(-14, 26, dtype=torch.float32), len(batch["hist"]) // 2
+    path = torch.stack([t, torch.zeros_like(t)], -1).expand(n, -1, -1).clone()
+    path[:k, :15] += 0.3 * torch.randn(k, 15, 2, generator=gen)  # noisy clicks in the observed part
+    a = (t + 14) / 12  # the turning half: clean, 1 m per step on a 12 m radius
+    path[k:] = torch.stack([12 * torch.sin(a), 12 * (1 - torch.cos(a))], -1) - torch.stack(
+        [12 * torch.sin(a[14]), 12 * (1 - torch.cos(a[14]))])
+    hist = batch["hist"].clone()
+    hist[:, :, :2], hist[:, :, FEATURES.index("present")] = path[:, :15], 1.0
+    jb = {**batch, "hist": hist, "fut": path[:, 15:].clone(), "fut_valid": torch.ones(n, 25, dtype=torch.bool)}
+    losses = []
+    for model, params in ((shared, [shared.w]), (gated, [gated.w, gated.g])):
+        opt = torch.optim.Adam(params, lr=1e-2)
+        for _ in range(300):
+            loss = mse(model(jb), jb["fut"], jb["fut_valid"])
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+        losses.append(float(loss.detach()))
+    assert losses[1] < 0.7 * losses[0]

@@ -20,6 +20,9 @@ class ModelConfig:
         that plus a learned blend of the mean displacements over the last 2 .. cv_lags steps (zero at
         initialisation, so still exactly constant velocity; models.gaussian.LagBlend): noisy real tracks
         extrapolate better from a velocity smoothed over several steps.
+    cv_gate: with cv_lags > 1, the blend's weights depend on each track's own jitter (models.gaussian.track_jitter),
+        learned likewise from zero: a data set that mixes noisy and clean annotations smooths only the noisy
+        tracks. False in configs written before the option existed.
     """
 
     history: int = 15
@@ -35,6 +38,7 @@ class ModelConfig:
     residual: bool = False
     residual_scale: float = 5.0
     cv_lags: int = 1
+    cv_gate: bool = False
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
