@@ -15,7 +15,8 @@ in the raw loop's cruise, which this leaves out).
 
 Usage: python bench/envs.py [--steps 1000] [--rounds 5] [--env ID] [--old REV]
   --old REV  also measure the env of git revision REV (checked out into a temporary worktree, run in a
-             subprocess) for a before/after table.
+             subprocess after this run's loops): its env-steps/s and env layer, for a before/after table.
+Each loop runs 20 untimed steps first (a fresh checkout compiles its numba kernels on the first calls).
 """
 
 from __future__ import annotations
@@ -123,6 +124,10 @@ def measure(steps: int, rounds: int, env_ids: tuple[str, ...] = ENVS, variants: 
         if variants:  # every reset warms the traffic up afresh (the behaviour before warm resets)
             loops["env_cold_resets"] = EnvLoop(env_id, {"episodes_per_warmup": 1})
         raw = RawLoop(env_id)
+        for loop in (raw, *loops.values()):  # warm up: compiled kernels (a fresh checkout's first calls) untimed
+            loop.run(20)
+        for loop in loops.values():
+            loop.resets, loop.reset_cpu, loop.sim_cpu = 0, 0.0, 0.0
         wall = dict.fromkeys([*loops, "raw"], 0.0)
         cpu = dict(wall)
         chunk = max(1, steps // rounds)
@@ -151,16 +156,16 @@ def measure(steps: int, rounds: int, env_ids: tuple[str, ...] = ENVS, variants: 
     return out
 
 
-def measure_old(rev: str, steps: int) -> dict[str, float]:
-    """Env-steps/s of revision `rev` (its own simharness, default config) in a subprocess."""
+def measure_old(rev: str, steps: int, rounds: int, env_ids: tuple[str, ...] = ENVS) -> dict[str, dict]:
+    """`measure` (without variants) of revision `rev` (its own simharness, default config) in a subprocess."""
     root = Path(__file__).resolve().parents[1]
     with tempfile.TemporaryDirectory(prefix="simharness_old_") as tmp:
         wt = Path(tmp) / "wt"
         subprocess.run(["git", "-C", str(root), "worktree", "add", "--detach", str(wt), rev], check=True,
                        capture_output=True)
         try:
-            code = ("import json, sys; sys.path.insert(0, sys.argv[1]); from envs_bench import EnvLoop, ENVS; "
-                    f"print(json.dumps({{k: {steps} / EnvLoop(k, {{}}).run({steps})[1] for k in ENVS}}))")
+            code = ("import json, sys; sys.path.insert(0, sys.argv[1]); from envs_bench import measure; "
+                    f"print(json.dumps(measure({steps}, {rounds}, {tuple(env_ids)!r}, variants=False)))")
             (Path(tmp) / "envs_bench.py").write_text(Path(__file__).read_text())
             env = {**os.environ, "PYTHONPATH": str(wt)}
             proc = subprocess.run([sys.executable, "-c", code, tmp], capture_output=True, text=True, env=env,
@@ -179,17 +184,17 @@ def main() -> None:
     a = p.parse_args()
     ids = (a.env,) if a.env else ENVS
     res = measure(a.steps, a.rounds, ids)
-    old = measure_old(a.old, a.steps) if a.old else {}
+    old = measure_old(a.old, a.steps, a.rounds, ids) if a.old else {}
     print(f"{'env':16s} {'raw fr/s':>9s} {'env st/s':>9s} {'share':>6s} {'in reset':>8s} {'step-only st/s':>15s} "
           f"{'share':>6s} {'layer on sim':>12s} {'cold-reset st/s':>16s} {'share':>6s}"
-          + (f" {'old st/s':>9s}" if old else ""))
+          + (f" {'old st/s':>9s} {'old layer':>9s}" if old else ""))
     for k, r in res.items():
         line = (f"{k:16s} {r['raw_frames_per_s']:9.0f} {r['env_steps_per_s']:9.0f} {r['env_share_of_raw']:6.0%} "
                 f"{r['env_reset_cpu_share']:8.0%} {r['env_step_only_per_s']:15.0f} "
                 f"{r['env_step_only_share_of_raw']:6.0%} {r['env_layer_on_top_of_sim']:12.0%} "
                 f"{r['env_cold_resets_steps_per_s']:16.0f} {r['env_cold_resets_share_of_raw']:6.0%}")
-        if old:
-            line += f" {old.get(k, float('nan')):9.0f}"
+        if k in old:
+            line += f" {old[k]['env_steps_per_s']:9.0f} {old[k]['env_layer_on_top_of_sim']:9.0%}"
         print(line)
     print(json.dumps({"now": res, "old": old, "steps": a.steps, "rounds": a.rounds}))
 

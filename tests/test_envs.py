@@ -76,6 +76,38 @@ def test_observation_matches_the_frames():
     env.close()
 
 
+def test_history_tracks_agents_by_id():
+    """Agents that leave, come back, change rows or first appear (more than the initial room) are tracked by
+    id over the held frames: the states of each frame where the id is present, zeros and False elsewhere."""
+    from simharness.envs.observation import History
+    from simharness.sim.base import Frame
+
+    rng = np.random.default_rng(5)
+    pool = np.array([f"car_{i}" for i in range(220)])
+    hist, held = History(4), []
+    for it in range(40):
+        if it == 20:
+            hist.clear()
+            held = []
+        n = int(rng.integers(0, 60 + 4 * it))
+        ids = pool[rng.choice(60 + 4 * it, n, replace=False)] if not (it % 5 == 1 and held) else held[-1].agent_id
+        f = Frame(t=0.1 * it, agent_id=ids, agent_type=np.zeros(len(ids), np.int8),
+                  xy=rng.normal(size=(len(ids), 2)).astype(np.float32),
+                  heading=rng.normal(size=len(ids)).astype(np.float32), speed=rng.random(len(ids)).astype(np.float32),
+                  length=np.ones(len(ids), np.float32), width=np.ones(len(ids), np.float32))
+        hist.append(f)
+        held = (held + [f])[-4:]
+        rows = rng.permutation(len(ids))[: int(rng.integers(0, len(ids) + 1))]
+        xy, heading, speed, present = hist.track(rows)
+        assert len(hist) == len(held) and present.shape == (rows.size, len(held))
+        for j, g in enumerate(held):
+            at = {a: r for r, a in enumerate(g.agent_id)}
+            for i, a in enumerate(ids[rows]):
+                want = np.r_[g.xy[at[a]], g.heading[at[a]], g.speed[at[a]]] if a in at else np.zeros(4)
+                assert present[i, j] == (a in at)
+                assert np.array_equal(np.r_[xy[i, j], heading[i, j], speed[i, j]], want.astype(np.float64))
+
+
 def test_forecast_observation_option():
     env = gym.make("simharness/HighwayDense-v0", config={**HW, "predictor": "const-vel", "num_agents": 8})
     obs, _ = env.reset(seed=0)
@@ -283,25 +315,35 @@ def test_ppo_trains_some_thousand_steps(env_id, cfg):
 
 
 def test_reward_gap_is_safety_min_gap_bit_for_bit():
-    """The reward's per-component ego gap gives the float32 values of `safety.min_gap` (random poses, rounded
-    positions and zero headings included: the cases where a different order of operations would show)."""
-    from simharness.envs.reward import ego_gaps
+    """The compiled per-component gaps give the float32 values of `safety.min_gap`, and the reward's ego gap
+    their minimum (random poses, rounded positions and zero headings included: the cases where a different
+    order of operations would show)."""
+    from simharness.envs.reward import GAP_CAP, ego_safety
     from simharness.metrics import safety
+    from simharness.metrics.separating_axis import gaps
+    from simharness.sim.base import Frame
 
     rng = np.random.default_rng(0)
     for it in range(300):
         n = int(rng.integers(2, 30))
         xy = rng.uniform(-30, 30, (n, 2)).astype(np.float32).astype(np.float64)
         if it % 3 == 0:
-            xy = np.round(xy, 1)
+            xy = np.round(xy, 1).astype(np.float32).astype(np.float64)  # (a Frame holds float32)
         heading = rng.uniform(-np.pi, np.pi, n).astype(np.float32).astype(np.float64)
         heading[rng.random(n) < 0.4] = 0.0
-        length = rng.choice([0.5, 1.8, 4.5, 12.0], n)
-        width = rng.choice([0.5, 0.8, 1.8, 2.5], n)
+        length = rng.choice([0.5, 1.8, 4.5, 12.0], n).astype(np.float32).astype(np.float64)
+        width = rng.choice([0.5, 0.8, 1.8, 2.5], n).astype(np.float32).astype(np.float64)
         e = int(rng.integers(n))
         rows = np.flatnonzero(np.arange(n) != e)
         sub = np.concatenate([[e], rows])
         ref = safety.min_gap(xy[sub][:, None], heading[sub][:, None], length[sub], width[sub],
                              np.ones((sub.size, 1), bool), 0)[1:, 0]
-        got = ego_gaps(xy, heading, length, width, e, rows)
+        h = np.concatenate([heading, heading + np.pi / 2])  # each box's forward and left directions
+        c, s = np.cos(h), np.sin(h)
+        got = gaps(xy[e] - xy[rows], c[:n], s[:n], c[n:], s[n:], length, width, e, rows)
         assert got.dtype == np.float32 and np.array_equal(got.view(np.int32), ref.view(np.int32))
+        frame = Frame(t=0.0, agent_id=np.array([f"a{i}" for i in range(n)]), agent_type=np.zeros(n, np.int8),
+                      xy=xy.astype(np.float32), heading=heading.astype(np.float32),
+                      speed=np.zeros(n, np.float32), length=length.astype(np.float32),
+                      width=width.astype(np.float32), ego=e)
+        assert ego_safety(frame).gap == min(float(ref.min()), GAP_CAP)

@@ -1,13 +1,12 @@
-"""The reward's compiled time to collision against the numpy formulation it replaced."""
+"""The reward's compiled time to collision (through `ego_safety`) against the numpy formulation it replaced."""
 
 from __future__ import annotations
-
-from types import SimpleNamespace
 
 import numpy as np
 
 from simharness.envs import reward
 from simharness.metrics.collisions import boxes_overlap
+from simharness.sim.base import Frame
 
 
 def may_overlap(rel, ha, la, wa, hb, lb, wb):  # noqa: ANN001, ANN201
@@ -60,18 +59,22 @@ def test_min_ttc_matches_the_numpy_formulation():
         n = int(rng.integers(2, 40))
         xy = rng.uniform(-25, 25, (n, 2)).astype(np.float32).astype(np.float64)
         if it % 2:
-            xy = np.round(xy, 1)
+            xy = np.round(xy, 1).astype(np.float32).astype(np.float64)  # (a Frame holds float32)
         heading = rng.uniform(-0.6, 0.6, n).astype(np.float32).astype(np.float64)
         heading[rng.random(n) < 0.4] = 0.0
         speed = rng.choice([0.0, 3.0, 8.0, 14.0], n).astype(np.float32)
-        length, width = rng.choice([0.5, 1.8, 4.5, 12.0], n), rng.choice([0.5, 0.8, 1.8, 2.5], n)
-        frame = SimpleNamespace(ego=int(rng.integers(n)), speed=speed)
+        length = rng.choice([0.5, 1.8, 4.5, 12.0], n).astype(np.float32)
+        width = rng.choice([0.5, 0.8, 1.8, 2.5], n).astype(np.float32)
+        frame = Frame(t=0.0, agent_id=np.array([f"a{i}" for i in range(n)]), agent_type=np.zeros(n, np.int8),
+                      xy=xy.astype(np.float32), heading=heading.astype(np.float32), speed=speed, length=length,
+                      width=width, ego=int(rng.integers(n)))
         e = frame.ego
+        length, width = length.astype(np.float64), width.astype(np.float64)
         rel = xy - xy[e]
         d = np.hypot(rel[:, 0], rel[:, 1])
         reach = 0.5 * np.hypot(length, width) + 0.5 * np.hypot(length[e], width[e]) + 1e-6
-        args = (frame, xy, heading, length, width, rel, d, reach)
-        ref = numpy_min_ttc(*args)
-        assert reward._min_ttc(*args) == ref
+        ref = numpy_min_ttc(frame, xy, heading, length, width, rel, d, reach)
+        safe = reward.ego_safety(frame)
+        assert safe.ttc == ref and safe.contact == (ref == 0.0)
         found += ref < reward.TTC_CAP
     assert found > 50  # the test sees collisions ahead, not only free road

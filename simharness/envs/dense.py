@@ -7,6 +7,7 @@ SumoDense-v0 envs live side by side in one process.
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import gymnasium as gym
@@ -14,7 +15,7 @@ import numpy as np
 from gymnasium import spaces
 
 from simharness.envs.config import DEFAULT_CONFIG, resolve_config
-from simharness.envs.observation import FEATURES, History, agents_observation, ego_rotation
+from simharness.envs.observation import FEATURES, History, agents_observation, ego_offsets, ego_rotation
 from simharness.envs.reward import GAP_CAP, TTC_CAP, ego_safety, step_reward
 from simharness.errors import SimulatorError
 from simharness.scenario import ScenarioSpec, load_scenario
@@ -130,14 +131,15 @@ class DenseTrafficEnv(gym.Env):
         if frame.ego < 0:  # the ego drove off the end of the road: done, nothing more to score
             self._done = True
             return self._observation(), 0.0, True, False, self._info(TTC_CAP, GAP_CAP)
-        if prev.ego >= 0:
-            step = frame.xy[frame.ego].astype(np.float64) - prev.xy[prev.ego]
+        if prev.ego >= 0:  # Python floats: the float64 arithmetic of numpy's, without its per-scalar overhead
+            (x, y), (px, py) = frame.xy[frame.ego].tolist(), prev.xy[prev.ego].tolist()
             h = float(prev.heading[prev.ego])
-            moved = float(step[0] * np.cos(h) + step[1] * np.sin(h))
+            moved = (x - px) * float(np.cos(h)) + (y - py) * float(np.sin(h))
         else:
             moved = 0.0
         self._progress += moved
-        safe = ego_safety(frame)
+        offsets = ego_offsets(frame)  # shared by the safety terms and the observation
+        safe = ego_safety(frame, offsets)
         new_contact = safe.contact and not self._contact_prev
         self._contact_prev = safe.contact
         self._collisions += int(new_contact)
@@ -147,7 +149,8 @@ class DenseTrafficEnv(gym.Env):
         terminated = bool(new_contact and c["terminate_on_collision"])
         truncated = not terminated and self._steps * self.spec_.dt >= float(c["duration"]) - 1e-9
         self._done = terminated or truncated
-        return self._observation(), float(reward), terminated, bool(truncated), self._info(safe.ttc, safe.gap)
+        return (self._observation(offsets[2]), float(reward), terminated, bool(truncated),
+                self._info(safe.ttc, safe.gap))
 
     def command(self, action: np.ndarray) -> EgoCommand:
         """Normalised action (2,) -> physical `EgoCommand`: clipped to [-1, 1]; NaN or inf raise ValueError."""
@@ -176,10 +179,11 @@ class DenseTrafficEnv(gym.Env):
                 "collisions": int(self._collisions), "min_ttc": float(min(ttc, TTC_CAP)),
                 "min_gap": float(min(gap, GAP_CAP))}
 
-    def _observation(self) -> Any:
+    def _observation(self, d: np.ndarray | None = None) -> Any:
+        """The observation now; d (n,) m: the current frame's distances to the ego (`ego_offsets`), if known."""
         c = self.config
         k, h, rng = int(c["num_agents"]), int(c["history_frames"]), float(c["obs_range"])
-        obs, near = agents_observation(self._history, k, h, rng)
+        obs, near = agents_observation(self._history, k, h, rng, d)
         if not c["predictor"]:
             return obs
         return {"agents": obs, "forecast": self._forecast(self._history.now, near)}
@@ -208,13 +212,13 @@ def action_to_command(action: np.ndarray, config: dict[str, Any], where: str = "
     if a.size != 2:
         raise ValueError(f"{where}: action of shape {a.shape}: expected 2 values (acceleration, lateral speed) "
                          "in [-1, 1]")
-    a = a.reshape(2)
-    if not np.isfinite(a).all():
-        raise ValueError(f"{where}: action {a.tolist()} is not finite; expected 2 values in [-1, 1] (larger "
+    acc, lat = a.ravel().tolist()  # Python floats: numpy's float64 values, without its per-scalar overhead
+    if not (math.isfinite(acc) and math.isfinite(lat)):
+        raise ValueError(f"{where}: action {[acc, lat]} is not finite; expected 2 values in [-1, 1] (larger "
                          "values are clipped, NaN and inf are refused)")
-    a = np.clip(a, -1.0, 1.0)
-    acc = a[0] * (config["max_accel"] if a[0] >= 0 else config["max_decel"])
-    return EgoCommand(float(acc), float(a[1] * config["max_lateral_speed"]))
+    acc, lat = min(max(acc, -1.0), 1.0), min(max(lat, -1.0), 1.0)
+    acc = acc * (config["max_accel"] if acc >= 0 else config["max_decel"])
+    return EgoCommand(float(acc), float(lat * config["max_lateral_speed"]))
 
 
 class SumoDenseEnv(DenseTrafficEnv):

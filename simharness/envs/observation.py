@@ -1,7 +1,8 @@
 """The env's observation: the ego and its K nearest agents over the last H frames, in the ego's frame.
 
-Built from the last H `Frame`s directly (no `Scene`): agents are matched across frames by id with one
-sorted lookup per frame, and every feature is computed for all (agent, frame) pairs at once.
+Built from the last H `Frame`s directly (no `Scene`): `History` keeps every agent's state by (frame, id),
+so the K + 1 observed agents are gathered over the H frames at once, and one compiled pass writes the
+features of all (agent, frame) pairs.
 
 Features (F = 9 + 9), all clipped to [-1, 1]: ``present, x / range, y / range, vx / 30, vy / 30,
 cos(dh), sin(dh), length / 15, width / 3`` and a one-hot `AgentType`; x ahead and y left of the ego at
@@ -11,9 +12,10 @@ the current frame, dh the heading relative to the ego's now. Absent rows and fra
 from __future__ import annotations
 
 import collections
-from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
+from numba import njit
 
 from simharness.scene import AgentType
 from simharness.sim.base import Frame
@@ -22,70 +24,97 @@ FEATURES = 9 + len(AgentType)
 SPEED_SCALE = 30.0  # m/s
 LENGTH_SCALE = 15.0  # m
 WIDTH_SCALE = 3.0  # m
-_ONEHOT = np.eye(len(AgentType), dtype=np.float32)
-
-
-@dataclass(frozen=True)
-class _Indexed:
-    """A frame with its ids sorted once, for matching agents across frames, and their states in that order."""
-
-    frame: Frame
-    sorted_ids: np.ndarray  # (n,) agent_id, sorted
-    states: np.ndarray  # (n, 4) float64 x, y (m), heading (rad), speed (m/s), in sorted_ids order
 
 
 class History:
-    """The last `frames` frames, oldest first."""
+    """The last `frames` frames, oldest first, and every agent's state in each of them.
+
+    Each agent id gets an integer code when first seen (since `clear`) and each frame a slot in a ring
+    buffer of states by (slot, code), so tracking agents over the held frames is one gather instead of a
+    sorted string lookup per frame.
+    """
 
     def __init__(self, frames: int) -> None:
-        self._items: collections.deque[_Indexed] = collections.deque(maxlen=frames)
+        self._frames: collections.deque[Frame] = collections.deque(maxlen=frames)
+        self._codes: dict[Any, int] = {}  # agent id -> code
+        self._now_codes = np.zeros(0, np.intp)  # (n,) codes of the newest frame's rows
+        self._states = np.zeros((frames, 64, 4))  # (slot, code, 4) float64 x, y (m), heading (rad), speed (m/s)
+        self._present = np.zeros((frames, 64), bool)  # (slot, code); states are zero where False
+        self._appended = 0  # frames appended since clear(); the newest is in slot (appended - 1) % frames
+        self._rings = (np.arange(frames)[:, None] + np.arange(frames)) % frames  # [a % frames]: slots oldest first
 
     def clear(self) -> None:
-        self._items.clear()
+        self._frames.clear()
+        self._codes.clear()
+        self._appended = 0
 
     def append(self, frame: Frame) -> None:
-        order = np.argsort(frame.agent_id, kind="stable")
-        states = np.column_stack([frame.xy, frame.heading, frame.speed])[order].astype(np.float64)
-        self._items.append(_Indexed(frame, frame.agent_id[order], states))
+        ids = frame.agent_id
+        # Most frames hold the agents of the frame before in the same rows: then their codes stand.
+        if not (self._frames and ids.shape == self.now.agent_id.shape and (ids == self.now.agent_id).all()):
+            names = ids.tolist()
+            codes = list(map(self._codes.get, names))
+            if None in codes:  # agents not seen since clear() take the next codes
+                codes = [self._codes.setdefault(i, len(self._codes)) for i in names]
+            self._now_codes = np.array(codes, np.intp)
+        if len(self._codes) > self._present.shape[1]:  # more agents than room: at least double it
+            grow = max(len(self._codes), 2 * self._present.shape[1]) - self._present.shape[1]
+            self._states = np.pad(self._states, ((0, 0), (0, grow), (0, 0)))
+            self._present = np.pad(self._present, ((0, 0), (0, grow)))
+        slot = self._appended % self._present.shape[0]
+        self._present[slot] = False
+        self._present[slot, self._now_codes] = True
+        self._states[slot] = 0.0  # absent agents read as zeros
+        states = np.concatenate([frame.xy, frame.heading[:, None], frame.speed[:, None]], 1)  # (n, 4) x, y, h, v
+        self._states[slot, self._now_codes] = states
+        self._frames.append(frame)
+        self._appended += 1
 
     @property
     def frames(self) -> list[Frame]:
-        return [i.frame for i in self._items]
+        return list(self._frames)
 
     @property
     def now(self) -> Frame:
-        return self._items[-1].frame
+        return self._frames[-1]
 
     def __len__(self) -> int:
-        return len(self._items)
+        return len(self._frames)
 
-    def track(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Positions of agents `ids` (m,) over the held frames: xy (m, T, 2) m, heading (m, T) rad,
-        speed (m, T) m/s and present (m, T) bool (zeros where absent)."""
-        m, t = len(ids), len(self._items)
-        states = np.zeros((m, t, 4))
-        present = np.zeros((m, t), bool)
-        at = np.zeros((m, t), np.intp)  # row of each (agent, frame) in the frames' states stacked
-        start = 0
-        for j, item in enumerate(self._items):  # H frames, each one vectorised lookup
-            n = len(item.sorted_ids)
-            if n and m:
-                pos = np.minimum(np.searchsorted(item.sorted_ids, ids), n - 1)
-                present[:, j] = item.sorted_ids[pos] == ids
-                at[:, j] = pos + start
-            start += n
-        if start and m:
-            states = np.where(present[..., None], np.concatenate([i.states for i in self._items])[at], 0.0)
-        return states[..., :2], states[..., 2], states[..., 3], present
+    def track(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The agents in `rows` (m,) of the newest frame over the held frames: xy (m, T, 2) m, heading (m, T)
+        rad, speed (m, T) m/s and present (m, T) bool (zeros where absent)."""
+        t = len(self._frames)
+        slots = self._rings[self._appended % t] if t == self._rings.shape[0] else self._rings[0, :t]
+        at = (slots, self._now_codes[rows][:, None])
+        states = self._states[at]
+        return states[..., :2], states[..., 2], states[..., 3], self._present[at]
 
 
-def nearest(frame: Frame, k: int, obs_range: float) -> np.ndarray:
-    """Rows of the (at most) k agents nearest the ego within obs_range m, nearest first: (<= k,) int."""
-    e = frame.ego
-    d = np.hypot(*(frame.xy.astype(np.float64) - frame.xy[e].astype(np.float64)).T)
-    d[e] = np.inf
+def ego_offsets(frame: Frame) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Centres xy (n, 2) float64 m, centres minus the ego's (n, 2) m and their norms (n,) m at `frame` (with
+    its ego): what the observation and the reward both measure from."""
+    xy = frame.xy.astype(np.float64)
+    rel = xy - xy[frame.ego]
+    return xy, rel, np.hypot(rel[:, 0], rel[:, 1])
+
+
+def nearest(frame: Frame, k: int, obs_range: float, d: np.ndarray | None = None) -> np.ndarray:
+    """Rows of the (at most) k agents nearest the ego within obs_range m, nearest first: (<= k,) int. d (n,) m:
+    the agents' distances to the ego (`ego_offsets`), if the caller has them."""
+    return _ego_and_nearest(ego_offsets(frame)[2] if d is None else d, frame.ego, k, obs_range)[1:]
+
+
+@njit(cache=True)
+def _ego_and_nearest(d: np.ndarray, e: int, k: int, obs_range: float) -> np.ndarray:
+    """(1 + <= k,) rows: the ego's (e), then `nearest`'s; ties keep row order (a stable sort), as numpy's."""
     cand = np.flatnonzero(d <= obs_range)
-    return cand[np.argsort(d[cand], kind="stable")][:k]
+    cand = cand[cand != e]
+    near = cand[np.argsort(d[cand], kind="mergesort")[:k]]
+    rows = np.empty(near.size + 1, np.intp)
+    rows[0] = e
+    rows[1:] = near
+    return rows
 
 
 def ego_rotation(frame: Frame) -> tuple[np.ndarray, np.ndarray, float]:
@@ -96,31 +125,61 @@ def ego_rotation(frame: Frame) -> tuple[np.ndarray, np.ndarray, float]:
     return frame.xy[e].astype(np.float64), np.array([[c, s], [-s, c]]), h0
 
 
-def agents_observation(history: History, k: int, h: int, obs_range: float) -> tuple[np.ndarray, np.ndarray]:
-    """(K + 1, H, F) float32 observation and the rows (in the current frame) of the observed neighbours."""
+def agents_observation(history: History, k: int, h: int, obs_range: float, d: np.ndarray | None = None
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """(K + 1, H, F) float32 observation and the rows (in the current frame) of the observed neighbours. d (n,)
+    m: the current frame's distances to the ego (`ego_offsets`), if the caller has them."""
     obs = np.zeros((k + 1, h, FEATURES), np.float32)
     frame = history.now
     e = frame.ego
     if e < 0:
         return obs, np.zeros(0, int)
-    near = nearest(frame, k, obs_range)
-    rows = np.concatenate([[e], near]).astype(int)
-    xy, heading, speed, present = history.track(frame.agent_id[rows])
+    rows = _ego_and_nearest(ego_offsets(frame)[2] if d is None else d, e, k, obs_range)
+    near = rows[1:]
+    xy, heading, speed, present = history.track(rows)
     p0, rot, h0 = ego_rotation(frame)
-    m, t = present.shape
-    feats = np.empty((m, t, FEATURES))
-    feats[..., 0] = 1.0
-    feats[..., 1:3] = (xy - p0) @ rot.T / obs_range
     dh = heading - h0
-    cos_dh, sin_dh = np.cos(dh), np.sin(dh)
-    feats[..., 3] = speed * cos_dh / SPEED_SCALE  # velocity in the ego frame: rotate by -h0
-    feats[..., 4] = speed * sin_dh / SPEED_SCALE
-    feats[..., 5] = cos_dh
-    feats[..., 6] = sin_dh
-    feats[..., 7] = (frame.length[rows] / LENGTH_SCALE)[:, None]
-    feats[..., 8] = (frame.width[rows] / WIDTH_SCALE)[:, None]
-    feats[..., 9:] = _ONEHOT[frame.agent_type[rows]][:, None]
-    np.clip(feats, -1.0, 1.0, out=feats)
-    feats *= present[..., None]
-    obs[:m, h - t:] = feats  # right-aligned: the last column is now
+    _fill(obs, (xy - p0) @ rot.T / obs_range, speed, np.cos(dh), np.sin(dh), present, rows, frame.length,
+          frame.width, frame.agent_type)
     return obs, near
+
+
+@njit(cache=True)
+def _clip(v: float) -> float:
+    """v clipped to [-1, 1] as `np.clip` does it (NaN stays NaN)."""
+    return -1.0 if v < -1.0 else (1.0 if v > 1.0 else v)
+
+
+@njit(cache=True)
+def _fill(obs: np.ndarray, pos: np.ndarray, speed: np.ndarray, cos_dh: np.ndarray, sin_dh: np.ndarray,
+          present: np.ndarray, rows: np.ndarray, length: np.ndarray, width: np.ndarray, agent_type: np.ndarray
+          ) -> None:
+    """Write the features of m agents over t frames into obs[:m, H - t:] (right-aligned: the last column is
+    now): each computed in float64, clipped to [-1, 1], times present (so absent entries are +-0), then cast
+    to float32, as the numpy formulation it replaces did, in one pass instead of some twenty numpy calls.
+
+    pos (m, t, 2): x, y / range in the ego frame; speed (m, t) m/s; cos_dh, sin_dh (m, t): of the heading
+    relative to the ego's now (numpy's values); present (m, t) bool; rows (m,): the agents' rows in the
+    current frame, whose length, width (n,) m and agent_type (n,) they take.
+    """
+    m, t = present.shape
+    h = obs.shape[1]
+    for i in range(m):
+        r = rows[i]
+        if not 0 <= agent_type[r] < obs.shape[2] - 9:
+            raise IndexError("agent_type out of range of AgentType")
+        # float32 length / scale rounds alike through float64 (double rounding is exact for one division)
+        lw0, lw1 = _clip(length[r] / LENGTH_SCALE), _clip(width[r] / WIDTH_SCALE)
+        for j in range(t):
+            p = 1.0 if present[i, j] else 0.0
+            o = obs[i, h - t + j]
+            o[0] = p
+            o[1] = _clip(pos[i, j, 0]) * p
+            o[2] = _clip(pos[i, j, 1]) * p
+            o[3] = _clip(speed[i, j] * cos_dh[i, j] / SPEED_SCALE) * p  # velocity in the ego frame
+            o[4] = _clip(speed[i, j] * sin_dh[i, j] / SPEED_SCALE) * p
+            o[5] = _clip(cos_dh[i, j]) * p
+            o[6] = _clip(sin_dh[i, j]) * p
+            o[7] = lw0 * p
+            o[8] = lw1 * p
+            o[9 + agent_type[r]] = p  # one-hot AgentType (the rest stays zero)

@@ -15,8 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from simharness.envs.ttc import min_ttc
-from simharness.metrics.separating_axis import gaps
+from simharness.envs.observation import ego_offsets
+from simharness.envs.ttc import ttc_and_gap
 from simharness.sim.base import Frame
 
 TTC_HORIZON = 3.0  # s
@@ -35,45 +35,20 @@ class EgoSafety:
     gap: float
 
 
-def ego_safety(frame: Frame) -> EgoSafety:
-    """Contact, min time-to-collision and min gap of the ego at `frame` (which must hold the ego)."""
+def ego_safety(frame: Frame, offsets: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> EgoSafety:
+    """Contact, min time-to-collision and min gap of the ego at `frame` (which must hold the ego); `offsets`:
+    `ego_offsets(frame)` if the caller has it already."""
     e = frame.ego
-    xy = frame.xy.astype(np.float64)
-    heading = frame.heading.astype(np.float64)
+    xy, rel, d = ego_offsets(frame) if offsets is None else offsets
     length, width = frame.length.astype(np.float64), frame.width.astype(np.float64)
-    rel = xy - xy[e]
-    d = np.hypot(rel[:, 0], rel[:, 1])
-    reach = 0.5 * np.hypot(length, width) + 0.5 * np.hypot(length[e], width[e]) + 1e-6
-    ttc = _min_ttc(frame, xy, heading, length, width, rel, d, reach)
-    # Gap: only agents whose lower bound d / sqrt(2) - reach can beat min(d) (an upper bound) or the cap.
-    others = np.arange(len(d)) != e
-    upper = min(float(d[others].min()) if others.any() else np.inf, GAP_CAP)
-    rows = np.flatnonzero(others & (d / np.sqrt(2.0) - reach <= upper))
-    gap = GAP_CAP
-    if rows.size:
-        gap = min(float(ego_gaps(xy, heading, length, width, e, rows).min()), GAP_CAP)
-    return EgoSafety(ttc == 0.0, ttc, gap)
-
-
-def ego_gaps(xy: np.ndarray, heading: np.ndarray, length: np.ndarray, width: np.ndarray, e: int,
-             rows: np.ndarray) -> np.ndarray:
-    """`safety.min_gap` of the ego (row e) to the agents `rows` (P,) at one frame: (P,) float32 m, the same
-    floats, computed per axis component instead of through its (P, 4, 2) stacks and einsums (a tenth of
-    the calls). xy (n, 2) m, heading (n,) rad, length, width (n,) m, all float64."""
+    half_diagonal = 0.5 * np.hypot(length, width)
+    heading = frame.heading.astype(np.float64)
     h = np.concatenate([heading, heading + np.pi / 2])  # the axes: each box's forward and left directions
     c, s = np.cos(h), np.sin(h)
     n = heading.size
-    return gaps(xy[e] - xy[rows], c[:n], s[:n], c[n:], s[n:], length, width, e, rows)
-
-
-def _min_ttc(frame: Frame, xy: np.ndarray, heading: np.ndarray, length: np.ndarray, width: np.ndarray,
-             rel: np.ndarray, d: np.ndarray, reach: np.ndarray) -> float:
-    """First sampled time (s) the ego's box overlaps another's under constant velocity; TTC_CAP if none."""
-    e = frame.ego
-    speed = frame.speed.astype(np.float64)
-    cos_h, sin_h = np.cos(heading), np.sin(heading)
-    vel = speed[:, None] * np.stack([cos_h, sin_h], -1)
-    return float(min_ttc(xy, rel, d, reach, vel, cos_h, sin_h, length, width, e, _TAUS, TTC_HORIZON, TTC_CAP))
+    ttc, gap = ttc_and_gap(xy, rel, d, half_diagonal, frame.speed, c[:n], s[:n], c[n:], s[n:], length, width, e,
+                           _TAUS, TTC_HORIZON, TTC_CAP, GAP_CAP)
+    return EgoSafety(ttc == 0.0, ttc, gap)
 
 
 def step_reward(weights: dict[str, float], moved: float, new_contact: bool, accel: float, prev_accel: float,
