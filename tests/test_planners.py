@@ -123,24 +123,44 @@ def test_no_hard_stop_in_front_of_a_fast_follower_for_a_slow_leader():
     assert planner.last_cost[hard] > alone.last_cost[hard] + 5.0
 
 
-def test_box_probability_is_the_full_evaluation_to_the_bit():
-    """The collision probability skips the normal CDFs where a factor is exactly 0: the same floats as evaluating
-    them everywhere, over near, far, ahead, behind and beside agents, with per-agent and shared sigmas."""
+def test_pair_terms_are_numpys_full_evaluation_to_the_bit():
+    """The compiled pair terms (collision probability and headway shortfall of every candidate x agent x step) are
+    the same floats as numpy's broadcast evaluation of the same formulas everywhere, the normal CDFs included, over
+    near, far, ahead, behind and beside agents, with per-agent and shared sigmas."""
     from scipy.special import ndtr
 
-    from simharness.planners import _NDTR_ONE, _NDTR_ZERO, _box_probability
+    from simharness.planners import _NDTR_ONE, _NDTR_ZERO, _pair_terms
 
     probe = np.concatenate([np.linspace(_NDTR_ONE, 60.0, 200_001), [np.inf]])
     assert (ndtr(probe) == 1.0).all() and (ndtr(-probe - (_NDTR_ONE - _NDTR_ZERO)) == 0.0).all()
     rng = np.random.default_rng(3)
-    shape = (49, 30, 20)
-    along, lat = rng.normal(0, 25, shape), rng.normal(0, 6, shape)
-    half_along, half_lat = rng.uniform(2, 6, shape), rng.uniform(1, 3, shape)
-    counted = rng.random((1, 30, 1)) < 0.8
-    for s_along, s_lat in ((rng.uniform(0.2, 3, shape), rng.uniform(0.2, 2, shape)),
-                           (rng.uniform(0.2, 0.6, (49, 1, 20)), rng.uniform(0.2, 0.6, (49, 1, 20)))):
+    n_c, n_m, n_f = 49, 30, 20
+    exy, axy = rng.normal(0, 3, (n_c, n_f, 2)), rng.normal(0, (25, 6), (n_m, n_f, 2))
+    eh, ah = rng.normal(0, 0.2, (n_c, n_f)), rng.uniform(-np.pi, np.pi, (n_m, n_f))
+    la, wa = rng.uniform(0.3, 6, n_m), rng.uniform(0.3, 1.3, n_m)
+    ev, counted = rng.uniform(0, 14, (n_c, n_f)), rng.random(n_m) < 0.8
+    along0, lat0, margin, want = 2.75, 1.1, 0.5, 2.0 + 1.0 * ev
+    ce, se, ca, sa = np.cos(eh), np.sin(eh), np.cos(ah), np.sin(ah)
+    for s_along, s_lat in ((rng.uniform(0.2, 3, (n_c, n_m, n_f)), rng.uniform(0.2, 2, (n_c, n_m, n_f))),
+                           (rng.uniform(0.2, 0.6, (n_c, 1, n_f)), rng.uniform(0.2, 0.6, (n_c, 1, n_f)))):
+        # numpy, every pair: what SamplingPlanner._interaction_cost evaluated before the kernel
+        cx, sx, cy, sy = ce[:, None], se[:, None], ca[None], sa[None]
+        rx, ry = axy[None, ..., 0] - exy[:, None, :, 0], axy[None, ..., 1] - exy[:, None, :, 1]
+        along, lat = rx * cx + ry * sx, ry * cx - rx * sx
+        cos_dh, sin_dh = np.abs(cy * cx + sy * sx), np.abs(sy * cx - cy * sx)
+        half_along = along0 + cos_dh * la[None, :, None] + sin_dh * wa[None, :, None]
+        half_lat = lat0 + sin_dh * la[None, :, None] + cos_dh * wa[None, :, None]
         full = (ndtr((half_along - along) / s_along) - ndtr((-half_along - along) / s_along)) * (
             ndtr((half_lat - lat) / s_lat) - ndtr((-half_lat - lat) / s_lat))
-        full = np.where(counted, full, 0.0)
-        got = _box_probability(along, half_along, s_along, lat, half_lat, s_lat, counted)
-        assert np.array_equal(got, full) and 0 < (got > 0).mean() < 0.5
+        full = np.where(counted[None, :, None], full, 0.0)
+        ahead = (along > 0) & (np.abs(lat) < half_lat)
+        w = np.broadcast_to(want[:, None], along.shape)
+        short = np.maximum(w - ((np.abs(along) - half_along) + margin), 0.0)
+        short2 = np.where(ahead, (short / np.maximum(w, 1.0)) ** 2, 0.0)
+
+        live, a1, b1, a2, b2, got2 = _pair_terms(exy, ce, se, axy, ca, sa, la, wa, along0, lat0, s_along, s_lat,
+                                                 counted, want, margin)
+        got = np.zeros(full.size)
+        got[live] = (ndtr(a1) - ndtr(b1)) * (ndtr(a2) - ndtr(b2))
+        assert np.array_equal(got.reshape(full.shape), full) and 0 < (full > 0).mean() and live.size < full.size
+        assert np.array_equal(got2, short2) and 0 < (short2 > 0).mean() < 0.5
