@@ -159,8 +159,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "the means directly as in the paper")
     t.add_argument("--cv-lags", type=cv_lags, default="auto",
                    help="residual form: extrapolate from the last displacement (1) plus a learned blend of the mean "
-                        "displacements over up to N steps (jittery tracks; not Social-GAN); auto (default): the lag "
-                        "whose constant velocity fits the training windows best, up to 5")
+                        "displacements over up to N steps (jittery tracks; not Social-GAN); auto (default): 5 with "
+                        "--cv-gate, else the lag whose constant velocity fits the training windows best, up to 5")
     t.add_argument("--cv-gate", action=argparse.BooleanOptionalAction, default=True,
                    help="residual form: the blend of lags is learned per track from its own jitter (default; smooth "
                         "the tracks whose noise is in the annotation, extrapolate the steady turns of clean ones), "

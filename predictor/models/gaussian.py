@@ -54,8 +54,8 @@ class LagBlend(nn.Module):
     """A residual model whose constant velocity is the last displacement plus a learned blend of longer lags:
     means + k * sum_l w_l (lag_steps_l - cv_step) at future step k. w starts at zero (exactly the model it wraps)
     and is learned with the rest; `cfg`, `name` and the Gaussian of the wrapped model are kept. With cfg.cv_gate
-    each track's w_l is w_l + g_l * jitter(track) (`track_jitter`, g zero at the start too): the blend smooths
-    tracks whose noise is in the annotation and keeps the last displacement on smooth ones, per track."""
+    each track's w_l is w_l + g_l * jitter(track) (`track_jitter`, g zero at the start too): one model smooths the
+    tracks whose noise is in the annotation and keeps, or extrapolates the trend of, the clean ones."""
 
     RATE = 10.0  # w is stored divided by this, so Adam's steps move it as fast as the network's outputs
 
