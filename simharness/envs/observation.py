@@ -99,15 +99,10 @@ def ego_offsets(frame: Frame) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return xy, rel, np.hypot(rel[:, 0], rel[:, 1])
 
 
-def nearest(frame: Frame, k: int, obs_range: float, d: np.ndarray | None = None) -> np.ndarray:
-    """Rows of the (at most) k agents nearest the ego within obs_range m, nearest first: (<= k,) int. d (n,) m:
-    the agents' distances to the ego (`ego_offsets`), if the caller has them."""
-    return _ego_and_nearest(ego_offsets(frame)[2] if d is None else d, frame.ego, k, obs_range)[1:]
-
-
 @njit(cache=True)
 def _ego_and_nearest(d: np.ndarray, e: int, k: int, obs_range: float) -> np.ndarray:
-    """(1 + <= k,) rows: the ego's (e), then `nearest`'s; ties keep row order (a stable sort), as numpy's."""
+    """(1 + <= k,) rows: the ego's (e), then those of the (at most) k agents nearest it within obs_range m,
+    nearest first, from their distances d (n,) m; ties keep row order (a stable sort), as numpy's."""
     cand = np.flatnonzero(d <= obs_range)
     cand = cand[cand != e]
     near = cand[np.argsort(d[cand], kind="mergesort")[:k]]
