@@ -139,7 +139,8 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
     model and model config must be this run's (`init_weights`). select: the validation criterion that picks the
     checkpoint: "loss" (the epoch's own loss: MSE in the warm-up, then NLL), or "mse" / "ade" (the means' squared or
     Euclidean error over the epochs whose sigma is fitted: those after the warm-up, and the starting weights when
-    they come from a trained run (`init`); a warm-up checkpoint's untrained sigma made planners collide).
+    they come from a trained run (`init`); a warm-up checkpoint's untrained sigma made planners collide; every
+    epoch for a model without sigma, Social-GAN).
     augment: mirror a random half of every batch (predictor.augment). scale_jitter: scale every training sample by
     a log-uniform factor in [1 / (1 + j), 1 + j] (0: off; predictor.augment.scale_batch). Writes out/model.pt (the
     best epoch's weights), out/config.json, out/log.csv. Returns
@@ -231,8 +232,12 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
 
     def fitted(epoch: int) -> bool:
         """Whether the weights after `epoch` may be kept: planners read the forecasts' sigma, which only the NLL
-        phase fits, so the warm-up's epochs and fresh starting weights are no candidates (unless no NLL phase)."""
-        return select == "loss" or epoch > warmup_epochs or warmup_epochs >= epochs or (epoch == 0 and init is not None)
+        phase fits, so the warm-up's epochs are no candidates (unless no NLL phase, or no sigma: a model without a
+        density, Social-GAN, may keep any epoch); starting weights only when trained (`init`)."""
+        if epoch == 0:
+            return init is not None
+        no_sigma = not getattr(net, "gaussian", True)
+        return select == "loss" or no_sigma or epoch > warmup_epochs or warmup_epochs >= epochs
 
     history = [{"epoch": 0, "loss": "init", "train": math.nan, **_epoch_eval(net, store, val_idx, batch_size, dev)}]
     if select != "loss" and fitted(0) and history[0][select] < best:  # trained starting weights are a candidate

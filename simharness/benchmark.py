@@ -50,7 +50,8 @@ class Profile:
     max_samples / max_val_samples: caps on training / validation windows (drawn with the seed), None for all.
     stride: recorded frames between training windows ("now"s); 1 uses every frame.
     residual: means as a correction to constant velocity (predictor.models.config); lr_schedule / patience /
-    mean_loss: the learning-rate schedule, early stopping and the means' loss after the warm-up (predictor.train).
+    mean_loss / select: the learning-rate schedule, early stopping, the means' loss after the warm-up and the
+    validation criterion that picks the checkpoint (predictor.train).
     """
 
     name: str
@@ -66,6 +67,7 @@ class Profile:
     lr_schedule: str = "cosine"
     patience: int | None = None
     mean_loss: str = "mse"
+    select: str = "ade"  # the scored means; "loss" kept Social-GAN's worst early epochs (docs/results.md, session 8)
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -117,7 +119,8 @@ def run_method(job: MethodJob) -> dict[str, Any]:
                     batch_size=p.batch_size, lr=p.lr, seed=p.seed, max_samples=p.max_samples,
                     window=protocol_window(job.protocol, stride=p.stride), threads=1, progress=False,
                     max_val_samples=p.max_val_samples, model_config={"residual": p.residual},
-                    lr_schedule=p.lr_schedule, patience=p.patience, device="auto", mean_loss=p.mean_loss)
+                    lr_schedule=p.lr_schedule, patience=p.patience, device="auto", mean_loss=p.mean_loss,
+                    select=p.select)
         predictor = ModelPredictor.from_run(out)
         row.update(train_s=round(time.perf_counter() - t0, 2),
                    params=int(sum(t.numel() for t in predictor.model.parameters())),
@@ -272,7 +275,8 @@ def format_markdown(results: dict[str, Any]) -> str:
              f"{prof['batch_size']}, lr {prof['lr']:g}, at most {prof['max_samples'] or 'all'} training windows "
              f"(stride {prof['stride']} frames; validation on at most {prof.get('max_val_samples') or 'all'}), "
              f"seed {prof['seed']}, {'residual over constant velocity' if prof.get('residual') else 'direct'} "
-             f"means. Protocol `{results['protocol']}` ({_protocol_text(results['protocol'])}) on the held-out "
+             f"means, checkpoint by validation {prof.get('select', 'loss')}. Protocol `{results['protocol']}` "
+             f"({_protocol_text(results['protocol'])}) on the held-out "
              f"test scenes. Data hash `{str(results['data_hash'])[:16]}`, config "
              f"hash `{results['config_hash']}`, wall time {results['wall_s']:.0f} s.", "",
              "## Data set (the paper's Table 1)", "", stats_table(results["stats"]), "",

@@ -151,6 +151,20 @@ def test_gan_step_trains_generator_and_discriminator(batch: dict[str, torch.Tens
     assert not torch.equal(model(batch)[..., :2], one)  # training draws the noise
 
 
+def test_gan_anchor_trains_the_scored_forecast(batch: dict[str, torch.Tensor]) -> None:
+    # The variety loss trains the samples' spread, not the z = 0 forecast that evaluation scores; the anchor does.
+    err = {}
+    for weight in (0.0, 1.0):
+        model = _model("social-gan")
+        model.cfg = dataclasses.replace(model.cfg, anchor_weight=weight)
+        opt = torch.optim.Adam(model.parameters(), lr=3e-3)
+        for _ in range(120):
+            model.training_step(batch, "nll", opt)
+        with torch.no_grad():
+            err[weight] = float(mse(model.eval()(batch), batch["fut"], batch["fut_valid"]))
+    assert err[1.0] < 0.5 * err[0.0], err
+
+
 def test_gan_predictor_gives_samples_and_best_of_k_takes_the_minimum() -> None:
     torch.manual_seed(0)
     model = build_model("social-gan", {"history": 15, "future": 25, "eval_samples": 20}).eval()

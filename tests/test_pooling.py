@@ -204,7 +204,8 @@ def dense_context(model: torch.nn.Module, batch: dict[str, torch.Tensor]) -> tor
 
 
 def full_gan_step(model: torch.nn.Module, batch: dict[str, torch.Tensor], opt: torch.optim.Optimizer) -> torch.Tensor:
-    """The former generator step: every one of the K samples decoded with gradients (same random draws)."""
+    """The former generator step: every one of the K samples decoded with gradients (same random draws), and the
+    z = 0 forecast's anchor."""
     hist_xy, _ = positions(batch["hist"], 1.0)
     fut, mask = batch["fut"], batch["fut_valid"]
     disc = model.discriminator
@@ -223,7 +224,9 @@ def full_gan_step(model: torch.nn.Module, batch: dict[str, torch.Tensor], opt: t
     samples = model._decode(dense_context(model, batch), batch["hist"], model.cfg.variety_k)
     adv = fn.binary_cross_entropy_with_logits(disc(torch.cat([hist_xy, samples[:, 0] * keep], 1)),
                                               torch.empty(b).uniform_(0.7, 1.2))
-    g_loss = variety_loss(samples, fut, mask) + model.cfg.adv_weight * adv
+    mode = model._decode(dense_context(model, batch), batch["hist"], 1, z=torch.zeros(b, 1, model.cfg.noise_dim))
+    g_loss = (variety_loss(samples, fut, mask) + model.cfg.adv_weight * adv
+              + model.cfg.anchor_weight * variety_loss(mode, fut, mask))
     opt.zero_grad()
     g_loss.backward()
     for p in disc.parameters():
