@@ -70,12 +70,17 @@ def displacements(xy: torch.Tensor) -> torch.Tensor:
     return torch.cat([torch.zeros_like(xy[..., :1, :]), xy[..., 1:, :] - xy[..., :-1, :]], -2)
 
 
+def sample_errors(samples: torch.Tensor, fut: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """Each sample's mean squared error over the target's known steps: samples (B, K, F, 2), fut (B, F, 2),
+    mask (B, F) -> (B, K), m^2 per point."""
+    m = mask[:, None].to(samples.dtype)
+    return (((samples - fut[:, None]) ** 2).sum(-1) * m).sum(-1) / m.sum(-1).clamp_min(1)
+
+
 def variety_loss(samples: torch.Tensor, fut: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     """Best-of-K squared error: samples (B, K, F, 2), fut (B, F, 2), mask (B, F) -> scalar, m^2 per point,
     the mean over targets of the smallest per-sample mean squared error."""
-    m = mask[:, None].to(samples.dtype)
-    err = (((samples - fut[:, None]) ** 2).sum(-1) * m).sum(-1) / m.sum(-1).clamp_min(1)  # (B, K)
-    return err.min(1).values.mean()
+    return sample_errors(samples, fut, mask).min(1).values.mean()
 
 
 class Discriminator(nn.Module):
@@ -212,14 +217,13 @@ class SocialGAN(nn.Module):
         z = torch.randn(b, self.cfg.variety_k, self.cfg.noise_dim, dtype=ctx.dtype).to(ctx.device)
         with torch.no_grad():
             samples = self._decode(ctx.detach(), batch["hist"], self.cfg.variety_k, z=z)
-            m = mask[:, None].to(samples.dtype)
-            best = ((((samples - fut[:, None]) ** 2).sum(-1) * m).sum(-1) / m.sum(-1).clamp_min(1)).argmin(1)
+            best = sample_errors(samples, fut, mask).argmin(1)
         pick = torch.stack([z[torch.arange(b, device=z.device), best], z[:, 0], torch.zeros_like(z[:, 0])], 1)
         chosen = self._decode(ctx, batch["hist"], 3, z=pick)
         adv = fn.binary_cross_entropy_with_logits(disc(torch.cat([hist_xy, chosen[:, 1] * keep], 1)),
                                                   torch.empty(b).uniform_(0.7, 1.2).to(fut.device))
-        g_loss = (variety_loss(chosen[:, :1], fut, mask) + self.cfg.adv_weight * adv
-                  + self.cfg.anchor_weight * variety_loss(chosen[:, 2:], fut, mask))
+        err = sample_errors(chosen[:, ::2], fut, mask)  # (B, 2): the best sample's and z = 0's
+        g_loss = err[:, 0].mean() + self.cfg.adv_weight * adv + self.cfg.anchor_weight * err[:, 1].mean()
         opt.zero_grad()
         g_loss.backward()
         for p in disc.parameters():  # the generator's step must not move the discriminator
