@@ -180,7 +180,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     e = cmd("evaluate", "simharness.evaluation:evaluate_command", "score a predictor open-loop on a data set")
     e.add_argument("--data", type=Path, required=True)
-    e.add_argument("--model", required=True, help="a run folder, 'traphic' (shipped weights) or 'const-vel'")
+    e.add_argument("--model", required=True, help="a run folder, 'traphic' (shipped weights), 'const-vel' or "
+                   "'const-vel:N' (the mean velocity over the last N history steps)")
     e.add_argument("--out", type=Path, default=None, help="folder for metrics.json and figures")
     force(e)
     e.add_argument("--protocol", default="traphic",

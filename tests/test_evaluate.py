@@ -96,5 +96,17 @@ def test_registry_names_and_run_folders(tmp_path):
         assert fc.mean.shape == (8, 10, 2) and np.isfinite(fc.mean).all()
     with pytest.raises(UserError, match="unknown predictor 'nope'"):
         load_predictor("nope")
+    # const-vel:N extrapolates the mean displacement over the last N steps: on a track whose every other position
+    # jumps 0.4 m sideways, N = 2 (an even span) keeps the steady 1 m a step that the last step (N = 1) misreads
+    t = np.arange(15, dtype=np.float32)
+    scene = flow_scene(4, n=1, t=15)
+    scene = scene.replace(xy=np.stack([t, 0.4 * (t % 2)], -1)[None], valid=np.ones((1, 15), bool))
+    last, smooth = (load_predictor(n).predict(scene, np.array([0]), 3) for n in ("const-vel", "const-vel:2"))
+    assert smooth.mean[0, :, 1] == pytest.approx([0.0] * 3) and last.mean[0, 0, 1] == pytest.approx(-0.4)
+    assert smooth.mean[0, :, 0] == pytest.approx(14 + np.arange(1, 4))
+    assert load_predictor("const-vel:2").name == "const-vel:2" and load_predictor("const-vel").name == "const-vel"
+    for bad in ("const-vel:0", "const-vel:x", "const-vel:"):
+        with pytest.raises(UserError, match="const-vel:N"):
+            load_predictor(bad)
     with pytest.raises(UserError, match="config.json"):
         load_predictor(tmp_path)  # a folder that is not a run

@@ -103,6 +103,20 @@ def test_select_mse_keeps_only_checkpoints_with_a_fitted_sigma(tmp_path) -> None
     assert np.array_equal(kept.mean, start.mean) and np.array_equal(kept.sigma_rho, start.sigma_rho)
 
 
+def test_select_ade_lets_a_model_without_sigma_keep_a_warm_up_epoch(tmp_path) -> None:
+    """Social-GAN has no sigma for the NLL phase to fit, so `select="ade"` takes its best epoch over the whole run,
+    warm-up included (the medium benchmark profile keeps its epoch 1); RNN-ED, with a sigma, only after the
+    warm-up; neither keeps the fresh start."""
+    data = write_flow_dataset(tmp_path / "data", scenes=5)
+    kw = dict(epochs=3, warmup_epochs=2, batch_size=64, max_samples=512, lr=0.05, lr_schedule="constant",
+              progress=False, select="ade", model_config={"residual": True})
+    gan = train(data, "social-gan", tmp_path / "gan", **kw)
+    rnn = train(data, "rnn-ed", tmp_path / "rnn", **kw)
+    ade = {name: [h["ade"] for h in res["val_history"]] for name, res in (("gan", gan), ("rnn", rnn))}
+    assert gan["best_epoch"] == 1 + int(np.argmin(ade["gan"][1:])) == 2  # a warm-up epoch
+    assert rnn["best_epoch"] == 3 and min(ade["rnn"][1:3]) < ade["rnn"][3]  # a better warm-up epoch passed over
+
+
 def test_lag_blend_starts_as_the_model_it_wraps_and_learns_to_smooth_a_jittery_velocity(batch) -> None:
     """cv_lags > 1: at initialisation exactly the residual model of cv_lags 1 (so constant velocity); on tracks whose
     last displacement is jitter around a steady motion, fitting the blend alone brings the error down."""

@@ -17,6 +17,8 @@ class ConstantVelocity:
 
     def __init__(self, lag: int = 1):
         self.lag = int(lag)
+        if self.lag != 1:  # reports and tables tell the smoothed reference from the plain one
+            self.name = f"const-vel:{self.lag}"
 
     def predict(self, history: Scene, targets: np.ndarray, horizon: int) -> Forecast:
         """history (N agents, T frames), targets (M,) rows present at the last frame -> Forecast (M, horizon, 2)."""
