@@ -21,10 +21,12 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from real_goals import TRAF_B  # noqa: E402  (the same two groups of videos)
+
 from simharness.io.parquet import Dataset  # noqa: E402
+from simharness.metrics.displacement import ade  # noqa: E402
 from simharness.protocols import get_protocol, windows  # noqa: E402
 
-TRAF_B = ["TRAF12", "TRAF17", "TRAF18", "TRAF22", "TRAF25", "TRAF27", "TRAF38"]  # as bench/real_goals.py
 LAG = 5  # steps of the smoothed constant velocity (1 s at 5 Hz)
 LAMBDA = 1e3  # ridge penalty on standardised features (fixed, not chosen on the test group)
 
@@ -40,9 +42,9 @@ def scene_rows(scene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         tr = xy[rows][:, cols]  # (M, H + F, 2)
         d = np.diff(tr[:, :p.history], axis=1)  # (M, H - 1, 2)
         cv = d[:, -LAG:].mean(1)
-        back = now - LAG * step
-        present = valid[:, now] & valid[:, max(back, 0)] & (back >= 0)
-        vel = (xy[:, now] - xy[:, max(back, 0)]) / LAG  # (N, 2) per step over the last second
+        back = now - LAG * step  # within the history (LAG < history), so never before the first frame
+        present = valid[:, now] & valid[:, back]
+        vel = (xy[:, now] - xy[:, back]) / LAG  # (N, 2) per step over the last second
         rel = xy[None, :, now] - tr[:, p.history - 1, None]  # (M, N, 2)
         dist = np.linalg.norm(rel, axis=-1)
         mask = present[None] & (np.arange(len(xy))[None] != rows[:, None])  # (M, N) neighbours, not the target
@@ -68,11 +70,6 @@ def ridge(x: np.ndarray, y: np.ndarray, lam: float):
     return lambda z: ((z - mu) / sd) @ w + y.mean(0)
 
 
-def ade(pred: np.ndarray, fut: np.ndarray) -> float:
-    """Mean Euclidean error of pred (reshaped to fut's (M, F, 2)) against fut."""
-    return float(np.linalg.norm(pred.reshape(fut.shape) - fut, axis=-1).mean())
-
-
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=ROOT / "data" / "real14" / "traf")
@@ -84,15 +81,17 @@ def main() -> int:
     data = {g: [np.concatenate([r[i] for r in rs]) for i in range(3)] for g, rs in groups.items()}
     print("| fold | test windows | constant velocity | over the last 5 steps | ridge, own history | ridge, own + "
           "neighbours |\n|---|---|---|---|---|---|")
-    k = np.arange(1, 26)[None, :, None]
     for tr, te in (("A", "B"), ("B", "A")):
         (own, nbr, fut), (own2, nbr2, fut2) = data[tr], data[te]
+        k = np.arange(1, fut.shape[1] + 1)[None, :, None]
+        every = np.ones(fut2.shape[:2], bool)
         cv2 = own2[:, -2:][:, None] * k  # smoothed constant velocity (the features' last two columns)
         last = own2[:, 2 * LAG - 2:2 * LAG][:, None] * k  # the last displacement: plain constant velocity
         target = (fut - own[:, -2:][:, None] * k).reshape(len(fut), -1)
-        cells = [ade(last, fut2), ade(cv2, fut2)]
+        cells = [ade(last, fut2, every), ade(cv2, fut2, every)]
         for x, x2 in ((own, own2), (np.hstack([own, nbr]), np.hstack([own2, nbr2]))):
-            cells.append(ade(cv2.reshape(len(fut2), -1) + ridge(x, target, LAMBDA)(x2), fut2))
+            corrected = cv2.reshape(len(fut2), -1) + ridge(x, target, LAMBDA)(x2)
+            cells.append(ade(corrected.reshape(fut2.shape), fut2, every))
         print(f"| {tr}->{te} | {len(fut2)} | " + " | ".join(f"{c:.2f}" for c in cells) + " |")
     return 0
 
