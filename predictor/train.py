@@ -189,6 +189,7 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
         theirs = read_config(init_files(model, init)[1])["model_config"]
         theirs = theirs if isinstance(theirs, dict) else {}
         mcfg["cv_gate"] = theirs.get("cv_gate", False)
+        mcfg["cv_gate_pool"] = theirs.get("cv_gate_pool", False)
         if mcfg.get("cv_lags") == "auto":
             mcfg["cv_lags"] = theirs.get("cv_lags", 1)
     elif mcfg.get("cv_lags") == "auto" and mcfg.get("cv_gate") and mcfg.get("residual"):
@@ -384,7 +385,8 @@ def train_command(args: argparse.Namespace) -> int:
                 window=protocol_window(getattr(args, "protocol", None)),
                 model_config={"residual": bool(getattr(args, "residual", True)),
                               "cv_lags": getattr(args, "cv_lags", "auto"),
-                              "cv_gate": bool(getattr(args, "cv_gate", True))},
+                              "cv_gate": bool(getattr(args, "cv_gate", True)),
+                              "cv_gate_pool": bool(getattr(args, "cv_gate_pool", True))},
                 lr_schedule=getattr(args, "lr_schedule", "cosine"), patience=getattr(args, "patience", None),
                 device=getattr(args, "device", "auto"), mean_loss=getattr(args, "mean_loss", "ade"),
                 init=getattr(args, "init", None), select=getattr(args, "select", "ade"),

@@ -166,6 +166,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "the tracks whose noise is in the annotation, extrapolate the steady turns of clean ones), "
                         "with --cv-lags auto every lag up to 5 offered; --no-cv-gate: one blend for all tracks; with "
                         "--init, as the run it fine-tunes")
+    t.add_argument("--cv-gate-pool", action=argparse.BooleanOptionalAction, default=True,
+                   help="with --cv-gate: the gate reads the jitter pooled over the target and the agents in its "
+                        "neighbour and horizon slots (default: annotation noise is the recording's); "
+                        "--no-cv-gate-pool: the target's own track only; with --init, as the run it fine-tunes")
     t.add_argument("--select", choices=["loss", "mse", "ade"], default="ade",
                    help="the validation criterion that picks the checkpoint: ade (default) / mse, the means' Euclidean "
                         "/ squared error over the epochs after the warm-up (whose sigma, which planners read, is "

@@ -155,7 +155,7 @@ def test_lag_blend_starts_as_the_model_it_wraps_and_learns_to_smooth_a_jittery_v
 
 def test_cv_lags_auto_follows_the_run_it_fine_tunes(tmp_path) -> None:
     """--cv-lags auto picks a lag from the training windows (every lag up to 5 with the per-track gate), except when
-    fine-tuning (--init), where the network it continues fixes the lags and the gate."""
+    fine-tuning (--init), where the network it continues fixes the lags and the gate (and what the gate reads)."""
     from simharness.cli import main
 
     data = str(write_flow_dataset(tmp_path / "data", scenes=5))
@@ -164,7 +164,8 @@ def test_cv_lags_auto_follows_the_run_it_fine_tunes(tmp_path) -> None:
     assert main(["train", *common, "--init", str(tmp_path / "a"), "--out", str(tmp_path / "b")]) == 0
     cfg = json.loads((tmp_path / "b" / "config.json").read_text())
     assert cfg["model_config"]["cv_lags"] == 3 and cfg["train"]["init"]["from"] == str(tmp_path / "a")
-    assert json.loads((tmp_path / "a" / "config.json").read_text())["model_config"]["cv_gate"] is True
+    mc = json.loads((tmp_path / "a" / "config.json").read_text())["model_config"]
+    assert mc["cv_gate"] is True and mc["cv_gate_pool"] is True
     assert main(["train", *common, "--no-cv-gate", "--out", str(tmp_path / "c")]) == 0
     mc = json.loads((tmp_path / "c" / "config.json").read_text())["model_config"]
     assert mc["cv_lags"] == 1 and mc["cv_gate"] is False  # one blend: smooth synthetic tracks want the last step
@@ -172,6 +173,9 @@ def test_cv_lags_auto_follows_the_run_it_fine_tunes(tmp_path) -> None:
     assert json.loads((tmp_path / "d" / "config.json").read_text())["model_config"]["cv_lags"] == 5
     assert main(["train", *common, "--init", str(tmp_path / "c"), "--out", str(tmp_path / "e")]) == 0
     assert json.loads((tmp_path / "e" / "config.json").read_text())["model_config"]["cv_gate"] is False
+    assert main(["train", *common, "--no-cv-gate-pool", "--out", str(tmp_path / "f")]) == 0
+    assert main(["train", *common, "--init", str(tmp_path / "f"), "--out", str(tmp_path / "g")]) == 0
+    assert json.loads((tmp_path / "g" / "config.json").read_text())["model_config"]["cv_gate_pool"] is False
 
 
 def test_track_jitter_tells_annotation_noise_from_a_smooth_turn() -> None:
@@ -192,6 +196,29 @@ def test_track_jitter_tells_annotation_noise_from_a_smooth_turn() -> None:
     assert 0.4 < float(j[:200].mean()) < 2 / 3 and torch.allclose(j[200:], torch.full((200,), -5 / 6), atol=0.03)
     hist[:, :3, present] = 0.0  # absent steps carry no second differences
     assert torch.isfinite(track_jitter(hist)).all()
+
+
+def test_pooled_jitter_reads_the_noise_of_the_agents_around_the_target(batch) -> None:
+    """pooled_jitter: alone in its slots a target's own `track_jitter`; a clean turning target among noisily
+    clicked neighbours reads as noisy (their shared annotation), where its own track reads as clean (the sums are
+    pooled, so a sharp turn would outweigh 5 cm of noise: this one has a 20 m radius)."""
+    from predictor.features import FEATURES
+    from predictor.models.gaussian import pooled_jitter, track_jitter
+
+    present = FEATURES.index("present")
+    alone = {**batch, "nbr": torch.zeros_like(batch["nbr"]), "hz": torch.zeros_like(batch["hz"])}
+    assert torch.allclose(pooled_jitter(alone), track_jitter(batch["hist"]), atol=1e-6)
+    gen = torch.Generator().manual_seed(0)
+    n, h = batch["hist"].shape[:2]
+    t = torch.arange(h, dtype=torch.float32)
+    hist = batch["hist"].clone()
+    hist[..., 0], hist[..., 1], hist[..., present] = 20 * torch.sin(t / 20), 20 * (1 - torch.cos(t / 20)), 1.0
+    nbr = torch.zeros_like(batch["nbr"])
+    nbr[:, :4, :, present] = 1.0
+    nbr[:, :4, :, 0] = t + 0.05 * torch.randn(n, 4, h, generator=gen)
+    nbr[:, :4, :, 1] = 3.0 + 0.05 * torch.randn(n, 4, h, generator=gen)
+    crowd = {**batch, "hist": hist, "nbr": nbr, "hz": torch.zeros_like(batch["hz"])}
+    assert (track_jitter(hist) < -0.5).all() and (pooled_jitter(crowd) > 0.3).all()
 
 
 def test_gated_lag_blend_smooths_the_noisy_tracks_and_keeps_the_turning_ones(batch) -> None:

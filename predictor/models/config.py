@@ -23,6 +23,9 @@ class ModelConfig:
     cv_gate: with cv_lags > 1, the blend's weights depend on each track's own jitter (models.gaussian.track_jitter),
         learned likewise from zero: a data set that mixes noisy and clean annotations smooths only the noisy
         tracks. False in configs written before the option existed.
+    cv_gate_pool: with cv_gate, the gate reads the jitter pooled over the target and the agents in its
+        neighbour and horizon slots (models.gaussian.pooled_jitter) instead of its own track's: annotation noise
+        belongs to the recording. False in configs written before the option existed.
     """
 
     history: int = 15
@@ -39,6 +42,7 @@ class ModelConfig:
     residual_scale: float = 5.0
     cv_lags: int = 1
     cv_gate: bool = False
+    cv_gate_pool: bool = False
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)

@@ -55,7 +55,8 @@ class LagBlend(nn.Module):
     means + k * sum_l w_l (lag_steps_l - cv_step) at future step k. w starts at zero (exactly the model it wraps)
     and is learned with the rest; `cfg`, `name` and the Gaussian of the wrapped model are kept. With cfg.cv_gate
     each track's w_l is w_l + g_l * jitter(track) (`track_jitter`, g zero at the start too): one model smooths the
-    tracks whose noise is in the annotation and keeps, or extrapolates the trend of, the clean ones."""
+    tracks whose noise is in the annotation and keeps, or extrapolates the trend of, the clean ones. With
+    cfg.cv_gate_pool the gate reads the jitter pooled over the target and the agents around it (`pooled_jitter`)."""
 
     RATE = 10.0  # w is stored divided by this, so Adam's steps move it as fast as the network's outputs
 
@@ -67,10 +68,24 @@ class LagBlend(nn.Module):
 
     def forward(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
         out, hist = self.net(batch), batch["hist"]
-        w = self.w[None] if self.g is None else self.w[None] + track_jitter(hist)[:, None] * self.g[None]
+        if self.g is None:
+            w = self.w[None]
+        else:
+            jitter = pooled_jitter(batch) if self.cfg.cv_gate_pool else track_jitter(hist)
+            w = self.w[None] + jitter[:, None] * self.g[None]
         delta = ((lag_steps(hist, self.cfg.cv_lags) - cv_step(hist)[:, None]) * (w * self.RATE)[..., None]).sum(1)
         k = torch.arange(1, out.shape[1] + 1, device=out.device, dtype=out.dtype)
         return torch.cat([out[..., :2] + k[None, :, None] * delta[:, None], out[..., 2:]], -1)
+
+
+def _bend_sums(tracks: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """The lag-1 products and the squares of the second differences of tracks (..., H, D) over their present
+    steps, each summed over steps and axes -> two (...) tensors."""
+    xy, present = tracks[..., _XY], tracks[..., _PRESENT] > 0.5
+    d2 = xy[..., 2:, :] - 2 * xy[..., 1:-1, :] + xy[..., :-2, :]  # (..., H - 2, 2)
+    ok = (present[..., 2:] & present[..., 1:-1] & present[..., :-2]).to(tracks.dtype)
+    d2 = d2 * ok[..., None]
+    return (d2[..., 1:, :] * d2[..., :-1, :]).sum((-2, -1)), (d2 * d2).sum((-2, -1))
 
 
 def track_jitter(hist: torch.Tensor) -> torch.Tensor:
@@ -78,12 +93,15 @@ def track_jitter(hist: torch.Tensor) -> torch.Tensor:
     autocorrelation of its second differences over the present steps of hist (B, H, D). White position noise
     gives up to 2/3 (each noisy point bends the track one way, then back; about 0.5 over 8 steps), a smooth
     path's steady turns and speed changes about -1 (-5/6 over 8 steps); 0 without three present pairs."""
-    xy, present = hist[..., _XY], hist[..., _PRESENT] > 0.5
-    d2 = xy[:, 2:] - 2 * xy[:, 1:-1] + xy[:, :-2]  # (B, H - 2, 2)
-    ok = (present[:, 2:] & present[:, 1:-1] & present[:, :-2]).to(hist.dtype)
-    d2 = d2 * ok[..., None]
-    lag1 = (d2[:, 1:] * d2[:, :-1]).sum((1, 2))
-    return -lag1 / ((d2 * d2).sum((1, 2)) + 1e-6)
+    lag1, sq = _bend_sums(hist)
+    return -lag1 / (sq + 1e-6)
+
+
+def pooled_jitter(batch: dict[str, torch.Tensor]) -> torch.Tensor:
+    """`track_jitter` of the target and the agents in its neighbour and horizon slots together (B,): annotation
+    noise is the recording's, so the agents around a target estimate it better than its one short track."""
+    lag1, sq = _bend_sums(torch.cat([batch["hist"][:, None], batch["nbr"], batch["hz"]], 1))  # (B, 1 + K)
+    return -lag1.sum(1) / (sq.sum(1) + 1e-6)
 
 
 def cv_extrapolation(hist: torch.Tensor, future: int) -> torch.Tensor:
