@@ -16,6 +16,13 @@ Parts (each prints a markdown table; the numbers in docs/results.md "Issue 14: r
 - sim2real: the TRAF folds again, TraPHic in the paper's form fine-tuned from the shipped weights (trained on
   `simharness generate` SUMO data; `train --init shipped`) vs the same model trained on the real videos alone;
   with `--init RUN`, a residual TraPHic pre-trained on generated data (run folder RUN) instead, both arms residual.
+- sim2real-eth, sim2real-eth-halves (not in the default parts): the eth / eth-halves folds with TraPHic fine-tuned
+  from `--init-eth RUN`, a residual TraPHic trained on generated data with eth-ucy windows, against the eth part's
+  runs (the same budget from scratch). The pre-training needs re-annotated copies (`simharness train` makes none
+  on generated data unless asked):
+      simharness train --data SUMO_DATA --protocol eth-ucy --epochs 8 --max-samples 30000 \
+          --reannotate-smooth 0.5 --reannotate-noise 0.1 --out runs/syn_eth
+      python bench/real_goals.py --parts sim2real-eth,sim2real-eth-halves --init-eth runs/syn_eth
 
 The eth, eth-halves and traf tables also score `const-vel:5` (the mean velocity over the last 5 observed steps), a
 smoothed reference beside the plain constant velocity that the goals name.
@@ -196,11 +203,16 @@ def main() -> int:
     ap.add_argument("--init", default="shipped",
                     help="sim2real's pre-trained weights: shipped (the paper's form, as shipped) or a run folder of a "
                          "residual TraPHic trained on `simharness generate` data (then both arms are residual)")
+    ap.add_argument("--init-eth", default=None,
+                    help="sim2real-eth(-halves)' pre-trained weights: a run folder of a residual TraPHic trained on "
+                         "generated data with --protocol eth-ucy")
     ap.add_argument("--train-args", default="", help="more `simharness train` options for every run, e.g. '--augment'")
     ap.add_argument("--traf-models", default="traphic,cs-lstm", help="models trained on TRAF (`train --model`)")
     ap.add_argument("--score-only", action="store_true", help="train nothing; score the runs already finished")
     args = ap.parse_args()
     parts = args.parts.split(",")
+    if any(p.startswith("sim2real-eth") for p in parts) and not args.init_eth:
+        ap.error("the sim2real-eth parts need --init-eth RUN (pre-trained on generated data with --protocol eth-ucy)")
     seeds = [int(s) for s in args.seeds.split(",")]
     budget = ["--epochs", str(args.epochs), "--warmup-epochs", str(args.warmup_epochs),
               "--max-samples", str(args.max_samples), *shlex.split(args.train_args)]
@@ -217,10 +229,18 @@ def main() -> int:
         s = ["--seed", str(seed)]
         for key, data in paths.items():
             part, _, held = key.partition(":")
-            if part in ("eth", "eth-halves") and part in parts:
+            if part in ("eth", "eth-halves") and {part, f"sim2real-{part}"} & set(parts):
                 run = args.out / part / f"traphic-not-{held}-s{seed}"
                 jobs.append((run, ["--data", str(data), "--protocol", "eth-ucy", *budget, *s]))
-                plan.setdefault(part, {}).setdefault(held, {}).setdefault("traphic", []).append(run)
+                if part in parts:
+                    plan.setdefault(part, {}).setdefault(held, {}).setdefault("traphic", []).append(run)
+                if f"sim2real-{part}" in parts:  # the run above is the arm from scratch
+                    init = args.out / f"sim2real-{part}" / f"traphic-init-not-{held}-s{seed}"
+                    jobs.append((init, ["--data", str(data), "--protocol", "eth-ucy", "--init", args.init_eth,
+                                        *budget, *s]))
+                    arms = plan.setdefault(f"sim2real-{part}", {}).setdefault(held, {})
+                    arms.setdefault("traphic-init", []).append(init)
+                    arms.setdefault("traphic-scratch", []).append(run)
         for fold, (_, test) in traf_folds.items():
             held = ["--test-scenes", ",".join(t + "_gt" for t in test)]
             tag = fold.replace("->", "to")
@@ -250,17 +270,18 @@ def main() -> int:
     from predictor.split import split_scenes
 
     for part, folds in plan.items():
-        protocol = {"eth": "eth-ucy", "eth-halves": "eth-ucy", "apollo": "apolloscape"}.get(part, "traphic")
+        eth = part.removeprefix("sim2real-")
+        protocol = "eth-ucy" if eth in ("eth", "eth-halves") else "apolloscape" if part == "apollo" else "traphic"
         scored: dict[str, dict[str, list[dict]]] = {}
         for fold, methods in folds.items():
-            data = paths.get(f"{part}:{fold}") or paths["apollo" if part == "apollo" else "traf"]
+            data = paths.get(f"{eth}:{fold}") or paths["apollo" if part == "apollo" else "traf"]
             ids = Dataset(data).scene_ids
             test = held_ids[fold] if part in ("traf", "sim2real") else split_scenes(ids)["test"]
             scored[fold] = {m: [per_scene(data, str(r), protocol, test) for r in runs] for m, runs in methods.items()}
             scored[fold]["const-vel"] = [per_scene(data, "const-vel", protocol, test)]
             if part in ("eth", "eth-halves", "traf"):  # the smoothed reference: what the learned blend of lags reaches
                 scored[fold]["const-vel:5"] = [per_scene(data, "const-vel:5", protocol, test)]
-        ref = "traphic-scratch" if part == "sim2real" else "const-vel"
+        ref = "traphic-scratch" if part.startswith("sim2real") else "const-vel"
         units = "px" if part in ("traf", "sim2real") else "m"
         print(f"\n{table(f'{part}: protocol {protocol}', units, scored, ref)}\n", flush=True)
         (args.out / f"{part}.json").write_text(json.dumps(scored, indent=0))

@@ -18,6 +18,7 @@ import json
 import math
 import os
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +26,8 @@ import numpy as np
 
 from predictor.checkpoint import atomic_write_text, read_config, save_checkpoint, versions
 from predictor.features import FeatureStore, WindowConfig
+from predictor.reannotate import VERSION as REANNOTATE_VERSION
+from predictor.reannotate import Level, copy_id, level_name, parse_levels, reannotated, simulated
 from predictor.split import split_scenes
 from simharness.errors import UserError
 from simharness.scene import Scene
@@ -92,6 +95,44 @@ def _cached_windows(key: str, scenes_fn: Any, window: WindowConfig, progress: bo
                                progress=progress)
 
 
+def _with_copies(key: str, scenes_fn: Any, train: Sequence[str], levels: Sequence[Level], window: WindowConfig
+                 ) -> tuple[str, Any]:
+    """(cache key, scenes_fn) of a data set with its training scenes copied at each re-annotation level."""
+    train = sorted(train)
+    tag = hashlib.sha256(json.dumps([REANNOTATE_VERSION, train, [level_name(lv) for lv in levels]]).encode()
+                         ).hexdigest()[:16]
+
+    def with_copies() -> tuple[list[Scene], list[str]]:
+        scenes, ids = scenes_fn()
+        extra = [(reannotated(s, sid, lv, window.scale_for(s)), copy_id(sid, lv))
+                 for s, sid in zip(scenes, ids, strict=True) if sid in train for lv in levels]
+        return ([*scenes, *(c.replace(meta={**c.meta, "scene_id": cid}) for c, cid in extra)],
+                [*ids, *(cid for _, cid in extra)])
+
+    return f"{key}-reannotated-{tag}", with_copies
+
+
+def _copy_table(store: FeatureStore, train: Sequence[str], levels: Sequence[Level]) -> np.ndarray:
+    """(samples, levels) int64: each training sample's index in each copy of its scene (-1 elsewhere). A copy has
+    the same windows as its original in the same order (noise and smoothing move positions, not presence), and a
+    store keeps each scene's samples together, in scene order."""
+    table = np.full((len(store) if levels else 0, len(levels)), -1, np.int64)
+    if not levels:
+        return table
+    scene = store.a["sample_scene"]
+    bounds = np.searchsorted(scene, np.arange(len(store.scene_ids) + 1))  # scene i: samples bounds[i]:bounds[i + 1]
+    where = {sid: i for i, sid in enumerate(store.scene_ids)}
+    for sid in train:
+        a, b = bounds[where[sid]], bounds[where[sid] + 1]
+        for k, lv in enumerate(levels):
+            c, d = bounds[where[copy_id(sid, lv)]], bounds[where[copy_id(sid, lv)] + 1]
+            if d - c != b - a:
+                raise UserError(f"re-annotated copy {copy_id(sid, lv)!r} has {d - c} windows, its scene {b - a}; "
+                                "clear the windows cache (~/.cache/simharness/windows)")
+            table[a:b, k] = np.arange(c, d)
+    return table
+
+
 def _to(batch: dict[str, Any], device: Any) -> dict[str, Any]:
     """A batch's tensors on `device` (as they are on the CPU)."""
     return batch if device.type == "cpu" else {k: v.to(device, non_blocking=True) for k, v in batch.items()}
@@ -126,7 +167,7 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
           test_scenes: list[str] | None = None, cache_dir: Path | None = None, lr_schedule: str = "cosine",
           patience: int | None = None, device: str = "cpu", mean_loss: str = "nll",
           init: str | Path | None = None, select: str = "loss", augment: bool = False,
-          scale_jitter: float = 0.0) -> dict[str, Any]:
+          scale_jitter: float = 0.0, reannotate: Sequence[Level] = ()) -> dict[str, Any]:
     """Train `model` on the train split of `data`, keep the best on the val split -> summary dict.
 
     lr_schedule: "cosine" (linear warm-up over LR_WARMUP of the steps, then cosine decay to LR_FLOOR x lr),
@@ -142,8 +183,10 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
     they come from a trained run (`init`); a warm-up checkpoint's untrained sigma made planners collide; every
     epoch for a model without sigma, Social-GAN).
     augment: mirror a random half of every batch (predictor.augment). scale_jitter: scale every training sample by
-    a log-uniform factor in [1 / (1 + j), 1 + j] (0: off; predictor.augment.scale_batch). Writes out/model.pt (the
-    best epoch's weights), out/config.json, out/log.csv. Returns
+    a log-uniform factor in [1 / (1 + j), 1 + j] (0: off; predictor.augment.scale_batch). reannotate: levels
+    (`predictor.reannotate`) at which every training scene is copied; each training sample is then drawn from the
+    original or one of its copies, uniformly, anew every epoch (validation stays on the original scenes).
+    Writes out/model.pt (the best epoch's weights), out/config.json, out/log.csv. Returns
     {"best_epoch", "best_val", "val_history", "epochs_run", "train_samples", "samples_per_s", ...}.
     """
     import torch
@@ -174,7 +217,15 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
     key, ids, scenes_fn = open_data(data)  # once: opening checks every shard's sha256
     store = _cached_windows(key, scenes_fn, window, progress, cache_dir)
     split = split_scenes(ids, test_scenes=test_scenes)  # test_scenes: leave-one-scene-out by name
+    reannotate = tuple(reannotate)
+    if reannotate and store.H < 4:  # no lag-1 product of second differences: no noise level for the gate to read
+        print(f"note: no re-annotated copies: {store.H} observed steps show the gate no annotation noise")
+        reannotate = ()
+    if reannotate:
+        store = _cached_windows(*_with_copies(key, scenes_fn, split["train"], reannotate, window), window, progress,
+                                cache_dir)
     train_idx, val_idx = store.samples_of(split["train"]), store.samples_of(split["val"])
+    copies = _copy_table(store, split["train"], reannotate)
     if max_samples is not None and len(train_idx) > max_samples:
         train_idx = np.sort(rng.choice(train_idx, max_samples, replace=False))
     if max_val_samples is not None and len(val_idx) > max_val_samples:  # a fixed subset: comparable epochs
@@ -220,6 +271,8 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
         config["train"]["init"] = init_info
     if scale_jitter > 0:  # only when on: the config hash of every other run stays what it was
         config["train"]["scale_jitter"] = scale_jitter
+    if reannotate:
+        config["train"]["reannotate"] = [level_name(lv) for lv in reannotate]
     if max_val_samples is not None:
         config["train"]["max_val_samples"] = max_val_samples
     config["config_hash"] = hashlib.sha256(
@@ -247,6 +300,7 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
     grids = {"nbr": window.neighbour_grid, "hz": window.horizon_grid}
     flips = np.random.default_rng(seed + 2)  # its own stream: the batch order is the same with or without
     scales = np.random.default_rng(seed + 3)
+    picks = np.random.default_rng(seed + 4)
     samples_seen, train_time = 0, 0.0
     for epoch in range(epochs):
         kind = loss_for_epoch(epoch, warmup_epochs)
@@ -258,6 +312,9 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
             sched = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, factor=0.5, patience=0)
         epoch_lr = opt.param_groups[0]["lr"]
         order = rng.permutation(train_idx)
+        if reannotate:  # each sample from the original or one of its copies
+            pick = picks.integers(0, len(reannotate) + 1, len(order))
+            order = np.where(pick == 0, order, copies[order, np.maximum(pick - 1, 0)])
         t0, tot, nb = time.perf_counter(), 0.0, 0
         bar = tqdm(range(0, len(order), batch_size), desc=f"epoch {epoch + 1}/{epochs} {kind}", unit="batch",
                    disable=not progress, leave=False)
@@ -377,7 +434,13 @@ def init_weights(net: Any, model: str, init: str | Path) -> dict[str, Any]:
 def train_command(args: argparse.Namespace) -> int:
     """`simharness train --data DIR --model NAME --out RUN [...]`."""
     from simharness.io.folders import prepare_output
+    from simharness.io.parquet import read_manifest
 
+    # Copies by default where they help: recorded data (a bad folder: one line, nothing written), a gated model.
+    gated = bool(getattr(args, "residual", True)) and bool(getattr(args, "cv_gate", True))
+    recorded = not simulated(read_manifest(Path(args.data)).get("info", {}))
+    levels = parse_levels(getattr(args, "reannotate_noise", None), getattr(args, "reannotate_smooth", None),
+                          recorded and gated)
     prepare_output(args.out, getattr(args, "force", False))
     res = train(args.data, model=args.model, out=args.out, epochs=args.epochs, warmup_epochs=args.warmup_epochs,
                 batch_size=args.batch_size, lr=args.lr, seed=args.seed, max_samples=args.max_samples,
@@ -390,7 +453,8 @@ def train_command(args: argparse.Namespace) -> int:
                 lr_schedule=getattr(args, "lr_schedule", "cosine"), patience=getattr(args, "patience", None),
                 device=getattr(args, "device", "auto"), mean_loss=getattr(args, "mean_loss", "ade"),
                 init=getattr(args, "init", None), select=getattr(args, "select", "ade"),
-                augment=getattr(args, "augment", True), scale_jitter=getattr(args, "scale_jitter", 0.0))
+                augment=getattr(args, "augment", True), scale_jitter=getattr(args, "scale_jitter", 0.0),
+                reannotate=levels)
     if set(res["config"]["split"]["val"]) & set(res["config"]["split"]["train"]):
         print(f"note: one scene left to train on, so validation (checkpoint choice) used the training scene(s) "
               f"{', '.join(res['config']['split']['train'])}")

@@ -82,6 +82,14 @@ def parse_names(text: str) -> list[str]:
     return names
 
 
+def float_list(text: str) -> list[float]:
+    """"0.5" or "0.05,0.15" -> [0.5] / [0.05, 0.15]."""
+    try:
+        return [float(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"bad list of numbers {text!r}; expected e.g. 0.1 or 0.05,0.15") from None
+
+
 def _call(target: str) -> Callable[[argparse.Namespace], int | None]:
     """Lazy 'module:function' so that `simharness --help` does not import torch or SUMO."""
     module, func = target.split(":")
@@ -181,6 +189,18 @@ def build_parser() -> argparse.ArgumentParser:
                    help="scale every training sample (positions, velocities, sizes, future) by a random factor "
                         "in [1/(1+J), 1+J]: robust to a video's unknown pixel scale or a scene's walking speed "
                         "(default 0: off)")
+    t.add_argument("--reannotate-smooth", type=float_list, default=None, metavar="S[,S...]",
+                   help="copy every training scene with each track smoothed along time over S seconds (a Gaussian-"
+                        "weighted local line; 0: none). With --reannotate-noise, the residual form's gate sees each "
+                        "recording at several annotation noise levels, and carries over to recordings annotated "
+                        "otherwise (ETH/UCY scene to scene, TRAF video to video). Default: 0.5 for recorded data in "
+                        "the gated residual form; none for `simharness generate` output (exact positions) or "
+                        "--no-residual / --no-cv-gate (no gate to read the noise level)")
+    t.add_argument("--reannotate-noise", type=float_list, default=None, metavar="M[,M...]",
+                   help="copy every training scene with white noise of std M metres added to every position (0: "
+                        "none; default: 0.1 where --reannotate-smooth defaults to 0.5, else none). Each training "
+                        "sample is drawn from its scene or a copy, anew every epoch; validation stays on the scenes "
+                        "as recorded")
 
     e = cmd("evaluate", "simharness.evaluation:evaluate_command", "score a predictor open-loop on a data set")
     e.add_argument("--data", type=Path, required=True)
