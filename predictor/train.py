@@ -438,6 +438,9 @@ def train_command(args: argparse.Namespace) -> int:
 
     # Copies by default where they help: recorded data (a bad folder: one line, nothing written), a gated model.
     gated = bool(getattr(args, "residual", True)) and bool(getattr(args, "cv_gate", True))
+    if getattr(args, "init", None) is not None:  # fine-tuning keeps the gate (or none) of the run it continues
+        theirs = read_config(init_files(args.model, args.init)[1]).get("model_config") or {}
+        gated = bool(theirs.get("residual")) and bool(theirs.get("cv_gate"))
     recorded = not simulated(read_manifest(Path(args.data)).get("info", {}))
     levels = parse_levels(getattr(args, "reannotate_noise", None), getattr(args, "reannotate_smooth", None),
                           recorded and gated)

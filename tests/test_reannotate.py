@@ -137,6 +137,10 @@ def test_the_cli_copies_by_default_records_it_and_refuses_a_bad_level(tmp_path, 
     for form in ("--no-residual", "--no-cv-gate"):  # no gate to read the noise level
         assert main(["train", *common, form, "--out", str(tmp_path / form)]) == 0
         assert "reannotate" not in json.loads((tmp_path / form / "config.json").read_text())["train"]
+    # fine-tuning follows the run it continues: a gated one gets copies, one without a gate none
+    for init, on in (("a", True), ("--no-cv-gate", False)):
+        assert main(["train", *common, "--init", str(tmp_path / init), "--out", str(tmp_path / f"ft{on}")]) == 0
+        assert ("reannotate" in json.loads((tmp_path / f"ft{on}" / "config.json").read_text())["train"]) is on
     capsys.readouterr()
     assert main(["train", *common, "--reannotate-noise", "-0.1", "--out", str(tmp_path / "c")]) != 0
     err = capsys.readouterr().err.strip().splitlines()
