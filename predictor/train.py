@@ -116,9 +116,9 @@ def _copy_table(store: FeatureStore, train: Sequence[str], levels: Sequence[Leve
     """(samples, levels) int64: each training sample's index in each copy of its scene (-1 elsewhere). A copy has
     the same windows as its original in the same order (noise and smoothing move positions, not presence), and a
     store keeps each scene's samples together, in scene order."""
-    table = np.full((len(store) if levels else 0, len(levels)), -1, np.int64)
     if not levels:
-        return table
+        return np.zeros((0, 0), np.int64)
+    table = np.full((len(store), len(levels)), -1, np.int64)
     scene = store.a["sample_scene"]
     bounds = np.searchsorted(scene, np.arange(len(store.scene_ids) + 1))  # scene i: samples bounds[i]:bounds[i + 1]
     where = {sid: i for i, sid in enumerate(store.scene_ids)}

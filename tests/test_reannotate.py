@@ -12,13 +12,11 @@ from simharness.errors import UserError
 from simharness.io.parquet import write_dataset
 from simharness.scene import Scene
 from tests._predictor_data import flow_scene, write_flow_dataset
+from tests.conftest import make_scene
 
 
 def _scene(xy: np.ndarray, valid: np.ndarray, dt: float = 0.4) -> Scene:
-    n, t = valid.shape
-    z = np.zeros((n, t), np.float32)
-    return Scene(xy=xy.astype(np.float32), heading=z, speed=z, valid=valid, agent_id=[f"a{i}" for i in range(n)],
-                 agent_type=np.zeros(n, np.int8), length=np.ones(n, np.float32), width=np.ones(n, np.float32), dt=dt)
+    return make_scene(*valid.shape, dt=dt).replace(xy=xy.astype(np.float32), valid=valid)
 
 
 def test_smoothing_keeps_a_straight_track_to_its_ends_and_removes_white_noise():
