@@ -29,7 +29,7 @@ from simharness.metrics.collisions import box_heading, collision_events  # noqa:
 from simharness.scenario import load_scenario  # noqa: E402
 from simharness.scene import AgentType  # noqa: E402
 from simharness.sim import make_simulator, scene_from_frames  # noqa: E402
-from simharness.sim.highway import HeteroHighwayEnv, config_from_spec  # noqa: E402
+from simharness.sim.highway.simulator import HeteroHighwayEnv, config_from_spec  # noqa: E402
 from simharness.stats import neighbours_within, types_per_frame  # noqa: E402
 
 SIM_HZ, POLICY_HZ = 10, 5

@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Sequence
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -382,29 +381,6 @@ class FeatureStore:
         arrays["sample_scene"] = arrays["sample_scene"].astype(np.int32)
         return FeatureStore(arrays, cfg, step, (H, F), list(scene_ids), has_future=require_future,
                             shapes=np.array(shapes, np.int64).reshape(-1, 2))
-
-    # -------------------------------------------------------------- caching (predictor.windows_cache)
-    def save(self, path: Path) -> None:
-        """Atomic write of the compact on-disk form."""
-        from predictor.windows_cache import save_store
-
-        save_store(self, Path(path))
-
-    @staticmethod
-    def load(path: Path) -> FeatureStore:
-        """A store written by `save`; UserError if it is damaged or inconsistent."""
-        from predictor.windows_cache import load_store
-
-        return load_store(Path(path))
-
-    @staticmethod
-    def cached(cache_dir: Path, data_key: str, cfg: WindowConfig, scenes_fn: Any,
-               progress: bool = True) -> FeatureStore:
-        """Load the store for (data_key, cfg, this code) from cache_dir, or build it with scenes_fn() -> (scenes, ids)
-        and save it; a damaged or stale file is rebuilt, never trusted."""
-        from predictor.windows_cache import cached_store
-
-        return cached_store(Path(cache_dir), data_key, cfg, scenes_fn, progress)
 
     # -------------------------------------------------------------- access
     def __len__(self) -> int:

@@ -89,10 +89,10 @@ def load_windows(data: Path, window: WindowConfig, progress: bool = True,
 def _cached_windows(key: str, scenes_fn: Any, window: WindowConfig, progress: bool,
                     cache_dir: Path | None) -> FeatureStore:
     """The FeatureStore of an opened data set (`open_data`), from the cache keyed on its content hash."""
-    from predictor.windows_cache import default_cache_dir
+    from predictor.windows_cache import cached_store, default_cache_dir
 
-    return FeatureStore.cached(Path(cache_dir) if cache_dir else default_cache_dir(), str(key), window, scenes_fn,
-                               progress=progress)
+    return cached_store(Path(cache_dir) if cache_dir else default_cache_dir(), str(key), window, scenes_fn,
+                        progress=progress)
 
 
 def _with_copies(key: str, scenes_fn: Any, train: Sequence[str], levels: Sequence[Level], window: WindowConfig

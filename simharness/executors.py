@@ -76,7 +76,7 @@ def _check_policy(workers: int, max_retries: int) -> None:
 
 def _release_simulators() -> bool:
     """Close any SUMO simulation a job left open in this process -> whether none was (the process is clean)."""
-    sumo = sys.modules.get("simharness.sim.sumo")
+    sumo = sys.modules.get("simharness.sim.sumo.simulator")
     live = list(getattr(sumo, "_LIVE", ()))
     for sim in live:
         sim.close()

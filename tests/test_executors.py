@@ -110,7 +110,7 @@ def flaky(job: tuple[str, Path]):
 
 def _sumo_job(job: tuple[int, bool]) -> int:
     """Start SUMO for seed job[0], step once, close it unless job[1] says to leave it open; -> the process id."""
-    from simharness.sim.sumo import SumoSimulator
+    from simharness.sim.sumo.simulator import SumoSimulator
 
     seed, leave_open = job
     sim = SumoSimulator(load_scenario("sumo_arterial_dense").with_overrides({"warmup": 1.0, "duration": 1.0}))

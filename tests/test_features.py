@@ -17,6 +17,7 @@ from predictor.features import (
     to_local,
     to_world,
 )
+from predictor.windows_cache import cached_store, load_store
 from simharness.errors import UserError
 from simharness.scene import AgentType, Scene
 
@@ -137,8 +138,8 @@ def test_store_cache_round_trip(tmp_path):
         calls.append(1)
         return [_scene()], ["s"]
 
-    a = FeatureStore.cached(tmp_path, "key", CFG, scenes_fn, progress=False)
-    b = FeatureStore.cached(tmp_path, "key", CFG, scenes_fn, progress=False)
+    a = cached_store(tmp_path, "key", CFG, scenes_fn, progress=False)
+    b = cached_store(tmp_path, "key", CFG, scenes_fn, progress=False)
     assert len(calls) == 1 and len(list(tmp_path.glob("*.npz"))) == 1
     for k in a.a:
         np.testing.assert_array_equal(a.a[k], b.a[k])
@@ -168,7 +169,7 @@ def test_concentration_of_all_frames_at_once_equals_frame_by_frame():
 
 
 def test_cache_is_compact_and_never_trusted_when_stale_or_damaged(tmp_path):
-    from predictor.windows_cache import load_store, save_store
+    from predictor.windows_cache import save_store
 
     calls = []
 
@@ -176,21 +177,21 @@ def test_cache_is_compact_and_never_trusted_when_stale_or_damaged(tmp_path):
         calls.append(1)
         return [_scene(), _scene(theta=0.5)], ["s", "t"]
 
-    built = FeatureStore.cached(tmp_path, "data-a", CFG, scenes_fn, progress=False)
+    built = cached_store(tmp_path, "data-a", CFG, scenes_fn, progress=False)
     (path,) = tmp_path.glob("windows-*.npz")
     assert path.stat().st_size < sum(v.nbytes for v in built.a.values()) / 2  # compact on disk (16x on real data)
-    again = FeatureStore.cached(tmp_path, "data-a", CFG, scenes_fn, progress=False)
+    again = cached_store(tmp_path, "data-a", CFG, scenes_fn, progress=False)
     assert len(calls) == 1
     idx = np.arange(len(built))
     for k in ("hist", "nbr", "hz", "fut", "nbr_cell", "hz_cell", "fut_valid"):
         np.testing.assert_array_equal(getattr(built.batch(idx), k), getattr(again.batch(idx), k))
     # other data or other windows: another key, a new build
-    FeatureStore.cached(tmp_path, "data-b", CFG, scenes_fn, progress=False)
-    FeatureStore.cached(tmp_path, "data-a", WindowConfig(max_neighbours=4), scenes_fn, progress=False)
+    cached_store(tmp_path, "data-b", CFG, scenes_fn, progress=False)
+    cached_store(tmp_path, "data-a", WindowConfig(max_neighbours=4), scenes_fn, progress=False)
     assert len(calls) == 3 and len(list(tmp_path.glob("windows-*.npz"))) == 3
     # a damaged file is rebuilt, silently and correctly
     path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
-    rebuilt = FeatureStore.cached(tmp_path, "data-a", CFG, scenes_fn, progress=False)
+    rebuilt = cached_store(tmp_path, "data-a", CFG, scenes_fn, progress=False)
     assert len(calls) == 4
     np.testing.assert_array_equal(rebuilt.batch(idx).nbr, built.batch(idx).nbr)
     # a readable file whose index points outside its data is refused with one clear line
@@ -199,8 +200,8 @@ def test_cache_is_compact_and_never_trusted_when_stale_or_damaged(tmp_path):
     with pytest.raises(UserError, match="damaged windows cache"):
         load_store(tmp_path / "bad.npz")
     with pytest.raises(UserError, match="unreadable windows cache"):
-        FeatureStore.load(tmp_path / "missing.npz")
+        load_store(tmp_path / "missing.npz")
     # files unused for a month go when a new one is written; those in use stay
     os.utime(path, (0, 0))
-    FeatureStore.cached(tmp_path, "data-c", CFG, scenes_fn, progress=False)
+    cached_store(tmp_path, "data-c", CFG, scenes_fn, progress=False)
     assert not path.exists() and len(list(tmp_path.glob("windows-*.npz"))) == 3

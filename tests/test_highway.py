@@ -10,8 +10,8 @@ from simharness.metrics.collisions import collision_events, collision_matrix
 from simharness.scenario import load_scenario
 from simharness.scene import DEFAULT_FOOTPRINT, AgentType, Scene
 from simharness.sim import EgoCommand, Simulator, make_simulator, scene_from_frames
-from simharness.sim.highway import HeteroHighwayEnv, HighwaySimulator
-from simharness.sim.highway_agents import AGENT_CLASSES, HeteroAgent, hex_rgb
+from simharness.sim.highway.agents import AGENT_CLASSES, HeteroAgent, hex_rgb
+from simharness.sim.highway.simulator import HeteroHighwayEnv, HighwaySimulator
 from simharness.style import TYPE_COLORS
 
 PED = int(AgentType.PEDESTRIAN)

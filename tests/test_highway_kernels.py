@@ -9,11 +9,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from simharness.sim import highway_dynamics as dyn
-from simharness.sim.highway_crossing import crossing_clear
-from simharness.sim.highway_decision import CUT_IN_BONUS, choose_offsets
-from simharness.sim.highway_leaders import band_leaders, leaders
-from simharness.sim.highway_room import lateral_room
+from simharness.sim.highway import dynamics as dyn
+from simharness.sim.highway.crossing import crossing_clear
+from simharness.sim.highway.decision import CUT_IN_BONUS, choose_offsets
+from simharness.sim.highway.leaders import band_leaders, leaders
+from simharness.sim.highway.room import lateral_room
 
 
 def scene(rng: np.random.Generator, n: int) -> dict[str, np.ndarray]:

@@ -12,7 +12,7 @@ from simharness.errors import SimulatorError
 from simharness.scenario import load_scenario
 from simharness.scene import AgentType, Scene
 from simharness.sim.base import EgoCommand, scene_from_frames
-from simharness.sim.sumo import SumoSimulator
+from simharness.sim.sumo.simulator import SumoSimulator
 
 
 def _record(spec, seed: int, commands=None) -> Scene:

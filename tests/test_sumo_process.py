@@ -17,8 +17,8 @@ from simharness.errors import SimulatorError
 from simharness.scenario import load_scenario
 from simharness.sim import make_simulator
 from simharness.sim.base import EgoCommand, Frame
-from simharness.sim.sumo import SumoSimulator
-from simharness.sim.sumo_process import SumoProcess
+from simharness.sim.sumo.process import SumoProcess
+from simharness.sim.sumo.simulator import SumoSimulator
 
 SPEC = load_scenario("sumo_arterial_dense").with_overrides(
     {"warmup": 20.0, "duration": 30.0, "ego.enabled": True, "ego.insert_at": 0.0})
@@ -151,7 +151,7 @@ def _alive(pid: int) -> bool:
 def test_workers_end_with_their_owner():
     script = textwrap.dedent("""
         from simharness.scenario import load_scenario
-        from simharness.sim.sumo_process import SumoProcess
+        from simharness.sim.sumo.process import SumoProcess
         spec = load_scenario("sumo_arterial_dense").with_overrides({"warmup": 5.0})
         sim = SumoProcess(spec)
         sim.reset(0)

@@ -3,7 +3,7 @@
 `import simharness.envs` registers
 
 - ``simharness/SumoDense-v0``: the SUMO dense arterial; libsumo runs in a worker process per env
-  (`simharness.sim.sumo_process.SumoProcess`), so any number live in one process (``gym.make`` twice,
+  (`simharness.sim.sumo.process.SumoProcess`), so any number live in one process (``gym.make`` twice,
   `SyncVectorEnv`, SB3's `DummyVecEnv` / `SubprocVecEnv`, `EvalCallback`);
 - ``simharness/HighwayDense-v0``: the highway-env mixed dense scenario.
 

@@ -15,15 +15,15 @@ def make_simulator(spec: ScenarioSpec, process: bool = False) -> Simulator:
     `branch()`); the highway backend is plain Python and always runs in this process.
     """
     if spec.backend == "sumo" and process:
-        from simharness.sim.sumo_process import SumoProcess
+        from simharness.sim.sumo.process import SumoProcess
 
         return SumoProcess(spec)
     if spec.backend == "sumo":
-        from simharness.sim.sumo import SumoSimulator
+        from simharness.sim.sumo.simulator import SumoSimulator
 
         return SumoSimulator(spec)
     if spec.backend == "highway":
-        from simharness.sim.highway import HighwaySimulator
+        from simharness.sim.highway.simulator import HighwaySimulator
 
         return HighwaySimulator(spec)
     raise ValueError(f"unknown backend {spec.backend!r}")  # the scenario loader already checked

@@ -7,7 +7,7 @@ carriageway (speed 0), moved sideways by the harness at walking speed. Every veh
 model treats it as an obstacle in its lateral band, and the pedestrian steps into the next band
 only when no vehicle there would reach it within `GAP_TIME` (gap acceptance, as people do).
 On a two-way road it crosses one carriageway, then the other (a new SUMO vehicle, same public id).
-Pedestrians walking along the road are ordinary flows of the same vType (sumo_demand.py).
+Pedestrians walking along the road are ordinary flows of the same vType demand.py.
 """
 
 from __future__ import annotations
@@ -19,8 +19,8 @@ from collections.abc import Callable
 import numpy as np
 
 from simharness.scenario import ScenarioSpec
-from simharness.sim.sumo_net import Carriageway, Network
-from simharness.sim.sumo_traffic import Traffic
+from simharness.sim.sumo.net import Carriageway, Network
+from simharness.sim.sumo.traffic import Traffic
 
 GAP_TIME = 3.0  # s: a vehicle closer than this (plus a margin) to the next band blocks a step
 MARGIN = 0.4  # m: lateral clearance kept to vehicles when stepping

@@ -9,8 +9,8 @@ angle, degrees clockwise from north, follows lateral speed in the sub-lane model
 footprint, and extras "sim_heading" (SUMO's lane-aligned box heading, what its own collision check
 uses) and "lateral_offset" (m from the carriageway centre line, positive left).
 
-Reading (sumo_traffic.py): constants once per vehicle, five getters per vehicle and recorded frame
-(cheaper than subscriptions: bench/sumo_recording.py). Recorded and unrecorded stepping run the same
+Reading (traffic.py): constants once per vehicle, five getters per vehicle and recorded frame
+(cheaper than subscriptions, measured). Recorded and unrecorded stepping run the same
 simulation (tests/test_sumo.py); the recorded path hands its read to the crossing pedestrians.
 """
 
@@ -32,11 +32,11 @@ from simharness.errors import SimulatorError, UserError
 from simharness.scenario import ScenarioSpec
 from simharness.scene import DEFAULT_FOOTPRINT, AgentType
 from simharness.sim.base import EgoCommand, Event, Frame, RoadGeometry
-from simharness.sim.sumo_demand import KINEMATICS, routes_xml
-from simharness.sim.sumo_ego import GhostEgo, ego_start, free_lateral
-from simharness.sim.sumo_net import Network, build_network
-from simharness.sim.sumo_pedestrians import Crossings
-from simharness.sim.sumo_traffic import Traffic, VehicleTable, read_traffic, rear_of
+from simharness.sim.sumo.demand import KINEMATICS, routes_xml
+from simharness.sim.sumo.ego import GhostEgo, ego_start, free_lateral
+from simharness.sim.sumo.net import Network, build_network
+from simharness.sim.sumo.pedestrians import Crossings
+from simharness.sim.sumo.traffic import Traffic, VehicleTable, read_traffic, rear_of
 
 os.environ.setdefault("LIBSUMO_AS_TRACI", "quiet")  # libsumo prints a pyarrow ABI note to stdout otherwise
 import libsumo  # noqa: E402
@@ -357,7 +357,7 @@ class SumoSimulator:
         return index, np.array(rows, np.float64)
 
     def _frame(self, command: EgoCommand | None = None, moved: bool = False) -> Frame:
-        """Every agent now: getters for what moves, constants from the table (sumo_traffic.py says why)."""
+        """Every agent now: getters for what moves, constants from the table traffic.py says why)."""
         g = libsumo.vehicle
         ids = g.getIDList()
         n = len(ids)

@@ -25,8 +25,8 @@ from typing import Any
 import numpy as np
 
 from simharness.scene import AgentType
-from simharness.sim.highway_agents import PARAMS
-from simharness.sim.highway_dynamics import VEHICLE
+from simharness.sim.highway.dynamics import VEHICLE
+from simharness.sim.highway.params import PARAMS
 
 ACTORS = {"brake": "truck", "cut_in": "motorcycle", "step_out": "pedestrian", "pull_out": "bus",
           "merge": "rickshaw"}  # as scenario.EVENT_ACTORS: the actor when `actor` is empty

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from simharness.sim.highway_dynamics import PED_CLAIM_S
+from simharness.sim.highway.dynamics import PED_CLAIM_S
 
 
 @njit(cache=True)

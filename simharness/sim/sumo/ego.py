@@ -15,7 +15,7 @@ from simharness.metrics.collisions import boxes_overlap
 from simharness.scenario import ScenarioSpec
 from simharness.scene import DEFAULT_FOOTPRINT, AgentType
 from simharness.sim.base import EgoCommand
-from simharness.sim.sumo_net import Carriageway, Network
+from simharness.sim.sumo.net import Carriageway, Network
 
 IDM_HEADWAY = 1.2  # s
 IDM_GAP = 2.0  # m
@@ -48,7 +48,7 @@ class GhostEgo:
     """Kinematic ego on a straight line: position s (m) along `cw`, lateral offset (m, + left), speed."""
 
     def __init__(self, spec: ScenarioSpec, cw: Carriageway, pos: float, agent_type: AgentType) -> None:
-        from simharness.sim.sumo_demand import KINEMATICS
+        from simharness.sim.sumo.demand import KINEMATICS
 
         self.cw, self.s, self.lat, self.v = cw, pos, 0.0, spec.ego.speed
         self.type = agent_type

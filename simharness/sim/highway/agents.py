@@ -3,10 +3,9 @@
 Each class carries its type's real footprint (`scene.DEFAULT_FOOTPRINT`) and
 its driving parameters as class attributes, the way highway-env vehicles do
 (`LENGTH`, `WIDTH`, `MAX_SPEED`, IDM's `ACC_MAX`, ...). The traffic itself is
-simulated on arrays (`highway_traffic.Traffic`); an agent object is a live
+simulated on arrays (`traffic.Traffic`); an agent object is a live
 view of one row, so `vehicle.position` always reads the current state.
-`PARAMS` is the same table as arrays indexed by type code, for the vectorised
-dynamics.
+The values come from one table (`params`), which the vectorised dynamics read as arrays.
 """
 
 from __future__ import annotations
@@ -17,9 +16,10 @@ import numpy as np
 from highway_env.vehicle.kinematics import Vehicle
 
 from simharness.scene import DEFAULT_FOOTPRINT, AgentType
+from simharness.sim.highway.params import type_params
 
 if TYPE_CHECKING:
-    from simharness.sim.highway_traffic import Traffic
+    from simharness.sim.highway.traffic import Traffic
 
 
 class HeteroAgent(Vehicle):
@@ -45,6 +45,14 @@ class HeteroAgent(Vehicle):
     TIME_WANTED = 1.2
     DISTANCE_WANTED = 1.5
     LATERAL_SPEED_MAX = 1.0
+
+    def __init_subclass__(cls, **kwargs: object) -> None:
+        """Each type's class attributes are its row of the parameter table (`params`)."""
+        super().__init_subclass__(**kwargs)
+        p = type_params(cls.AGENT_TYPE)
+        cls.LENGTH, cls.WIDTH, cls.MAX_SPEED, cls.SPEED_FACTOR = p["length"], p["width"], p["v_max"], p["speed_factor"]
+        cls.ACC_MAX, cls.COMFORT_ACC_MIN, cls.TIME_WANTED = p["a_max"], -p["b_comf"], p["headway"]
+        cls.DISTANCE_WANTED, cls.LATERAL_SPEED_MAX = p["s0"], p["vy_max"]
 
     def __init__(self, traffic: Traffic, uid: int) -> None:
         self.traffic, self.uid = traffic, uid  # before Vehicle.__init__, whose setters need the row
@@ -106,68 +114,36 @@ class HeteroAgent(Vehicle):
 
 class Car(HeteroAgent):
     AGENT_TYPE = AgentType.CAR
-    LENGTH, WIDTH = DEFAULT_FOOTPRINT[AgentType.CAR]
-    MAX_SPEED, SPEED_FACTOR = 40.0, 1.0
-    ACC_MAX, COMFORT_ACC_MIN, TIME_WANTED, DISTANCE_WANTED = 2.0, -3.0, 1.2, 1.5
-    LATERAL_SPEED_MAX = 1.0
 
 
 class Bus(HeteroAgent):
     AGENT_TYPE = AgentType.BUS
-    LENGTH, WIDTH = DEFAULT_FOOTPRINT[AgentType.BUS]
-    MAX_SPEED, SPEED_FACTOR = 25.0, 0.85
-    ACC_MAX, COMFORT_ACC_MIN, TIME_WANTED, DISTANCE_WANTED = 1.0, -2.0, 1.5, 2.0
-    LATERAL_SPEED_MAX = 0.5
 
 
 class Truck(HeteroAgent):
     AGENT_TYPE = AgentType.TRUCK
-    LENGTH, WIDTH = DEFAULT_FOOTPRINT[AgentType.TRUCK]
-    MAX_SPEED, SPEED_FACTOR = 25.0, 0.85
-    ACC_MAX, COMFORT_ACC_MIN, TIME_WANTED, DISTANCE_WANTED = 0.8, -2.0, 1.6, 2.0
-    LATERAL_SPEED_MAX = 0.5
 
 
 class Rickshaw(HeteroAgent):
     AGENT_TYPE = AgentType.RICKSHAW
-    LENGTH, WIDTH = DEFAULT_FOOTPRINT[AgentType.RICKSHAW]
-    MAX_SPEED, SPEED_FACTOR = 14.0, 0.8
-    ACC_MAX, COMFORT_ACC_MIN, TIME_WANTED, DISTANCE_WANTED = 1.4, -2.5, 1.0, 1.0
-    LATERAL_SPEED_MAX = 0.8
 
 
 class Motorcycle(HeteroAgent):
     AGENT_TYPE = AgentType.MOTORCYCLE
-    LENGTH, WIDTH = DEFAULT_FOOTPRINT[AgentType.MOTORCYCLE]
-    MAX_SPEED, SPEED_FACTOR = 30.0, 1.05
-    ACC_MAX, COMFORT_ACC_MIN, TIME_WANTED, DISTANCE_WANTED = 2.5, -3.5, 0.8, 0.8
-    LATERAL_SPEED_MAX = 1.4
 
 
 class Scooter(HeteroAgent):
     AGENT_TYPE = AgentType.SCOOTER
-    LENGTH, WIDTH = DEFAULT_FOOTPRINT[AgentType.SCOOTER]
-    MAX_SPEED, SPEED_FACTOR = 18.0, 0.9
-    ACC_MAX, COMFORT_ACC_MIN, TIME_WANTED, DISTANCE_WANTED = 2.0, -3.0, 0.8, 0.8
-    LATERAL_SPEED_MAX = 1.2
 
 
 class Bicycle(HeteroAgent):
     AGENT_TYPE = AgentType.BICYCLE
-    LENGTH, WIDTH = DEFAULT_FOOTPRINT[AgentType.BICYCLE]
-    MAX_SPEED, SPEED_FACTOR = 6.0, 0.4
-    ACC_MAX, COMFORT_ACC_MIN, TIME_WANTED, DISTANCE_WANTED = 1.0, -2.0, 1.0, 0.6
-    LATERAL_SPEED_MAX = 0.6
 
 
 class Pedestrian(HeteroAgent):
     """Walks along the road edge (IDM at walking pace) or crosses it (gap acceptance)."""
 
     AGENT_TYPE = AgentType.PEDESTRIAN
-    LENGTH, WIDTH = DEFAULT_FOOTPRINT[AgentType.PEDESTRIAN]
-    MAX_SPEED, SPEED_FACTOR = 3.0, 0.0  # desired speed comes from the scenario's walking speed
-    ACC_MAX, COMFORT_ACC_MIN, TIME_WANTED, DISTANCE_WANTED = 1.0, -2.0, 0.5, 0.4
-    LATERAL_SPEED_MAX = 0.0
 
 
 class Other(HeteroAgent):
@@ -177,19 +153,6 @@ class Other(HeteroAgent):
 AGENT_CLASSES: dict[AgentType, type[HeteroAgent]] = {
     c.AGENT_TYPE: c for c in (Car, Bus, Truck, Rickshaw, Motorcycle, Scooter, Bicycle, Pedestrian, Other)
 }
-
-
-def _param_table() -> dict[str, np.ndarray]:
-    """Class attributes as (9,) float64 arrays indexed by `AgentType` code."""
-    attrs = {"length": "LENGTH", "width": "WIDTH", "v_max": "MAX_SPEED", "speed_factor": "SPEED_FACTOR",
-             "a_max": "ACC_MAX", "b_comf": "COMFORT_ACC_MIN", "headway": "TIME_WANTED", "s0": "DISTANCE_WANTED",
-             "vy_max": "LATERAL_SPEED_MAX"}
-    table = {k: np.array([getattr(AGENT_CLASSES[t], a) for t in AgentType], np.float64) for k, a in attrs.items()}
-    table["b_comf"] = -table["b_comf"]  # stored positive for the IDM formula
-    return table
-
-
-PARAMS: dict[str, np.ndarray] = _param_table()
 
 
 def hex_rgb(color: str) -> tuple[int, int, int]:

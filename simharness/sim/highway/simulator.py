@@ -19,7 +19,7 @@ import numpy as np
 from simharness.errors import UserError
 from simharness.scenario import ScenarioSpec
 from simharness.sim.base import EgoCommand, Event, Frame, RoadGeometry
-from simharness.sim.highway_world import HeteroHighwayEnv
+from simharness.sim.highway.world import HeteroHighwayEnv
 
 __all__ = ["HeteroHighwayEnv", "HighwaySimulator", "config_from_spec", "road_geometry"]
 

@@ -3,14 +3,14 @@
 vType ids are "<agent type>__<level>" (level 0 aggressive .. LEVELS-1 conservative), grouped in a
 vTypeDistribution "<agent type>" per type, so a recorded vType maps back to its `AgentType` by
 the text before "__". Pedestrians are sub-lane vehicles of type "pedestrian__*" on the carriageway
-(see sumo_pedestrians.py for why).
+(see pedestrians.py for why).
 """
 
 from __future__ import annotations
 
 from simharness.scenario import ScenarioSpec
 from simharness.scene import DEFAULT_FOOTPRINT, AgentType
-from simharness.sim.sumo_net import Network
+from simharness.sim.sumo.net import Network
 
 LEVELS = 3  # drivers per type: aggressive, normal, conservative
 LEVEL_SHARE = (0.25, 0.5, 0.25)

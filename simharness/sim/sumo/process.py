@@ -73,7 +73,7 @@ class SumoProcess:
             root = str(Path(__file__).resolve().parents[2])
             env = {**os.environ, "PYTHONPATH": os.pathsep.join([root, os.environ.get("PYTHONPATH", "")]).rstrip(
                 os.pathsep), "LIBSUMO_AS_TRACI": "quiet", "OMP_NUM_THREADS": "1"}
-            popen = subprocess.Popen([sys.executable, "-m", "simharness.sim.sumo_process", str(theirs.fileno())],
+            popen = subprocess.Popen([sys.executable, "-m", "simharness.sim.sumo.process", str(theirs.fileno())],
                                      pass_fds=(theirs.fileno(),), env=env, stdin=subprocess.DEVNULL)
             theirs.close()
             _conn, _pid = Connection(ours.detach()), popen.pid
@@ -270,7 +270,7 @@ def _serve(conn: Connection, sim: Any, spec: ScenarioSpec, forked: bool) -> None
             elif op == "reset":
                 if forked:  # a forked copy shares the original's files: a fresh simulator owns its own
                     sim.close()
-                    from simharness.sim.sumo import SumoSimulator
+                    from simharness.sim.sumo.simulator import SumoSimulator
 
                     sim, forked = SumoSimulator(spec), False
                 value = sim.reset(arg)
@@ -329,7 +329,7 @@ def _worker_main(fd: int) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C goes to the caller, which closes us
     spec = pickle.loads(conn.recv())
     try:
-        from simharness.sim.sumo import SumoSimulator
+        from simharness.sim.sumo.simulator import SumoSimulator
 
         sim = SumoSimulator(spec)
     except Exception as e:

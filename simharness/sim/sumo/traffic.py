@@ -1,6 +1,6 @@
 """What the harness reads from libsumo: per-vehicle constants cached once, and one motion read per frame.
 
-Measured on the recorded path (bench/sumo_recording.py): plain libsumo getters cost about 0.3 us a
+Measured on the recorded path: plain libsumo getters cost about 0.3 us a
 call, less than subscriptions, which SUMO evaluates on every step (several per recorded frame) and
 whose dict-of-dicts results still need a Python pass per vehicle. So each vehicle's constants (agent
 type, length, width, public id) are read once, when it is first seen, into rows of growing arrays,
@@ -14,7 +14,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from simharness.sim.sumo_demand import agent_type_of
+from simharness.sim.sumo.demand import agent_type_of
 
 
 class VehicleTable:

@@ -3,9 +3,9 @@
 Feels like highway-env: a config dict with documented defaults
 (`HeteroHighwayEnv.default_config()`), `render_mode="rgb_array"`, `env.road`
 with a `RoadNetwork` of straight lanes and `road.vehicles` of per-type
-`Vehicle` subclasses (`highway_agents`). What differs is underneath:
+`Vehicle` subclasses (`agents`). What differs is underneath:
 `road.act()`/`road.step()` move every agent at once on arrays
-(`highway_traffic.Traffic`), so the cost of a step stays low with hundreds of
+(`traffic.Traffic`), so the cost of a step stays low with hundreds of
 agents, and vehicles are not tied to lanes.
 
 Observation: (observation_count, 8) rows [present, x, y, vx, vy, length, width, type] of the agents
@@ -27,9 +27,10 @@ from highway_env.road.road import Road, RoadNetwork
 
 from simharness.metrics.separating_axis import overlaps_with
 from simharness.scene import AgentType
-from simharness.sim.highway_agents import AGENT_CLASSES, PARAMS, HeteroAgent
-from simharness.sim.highway_events import EventScript
-from simharness.sim.highway_traffic import B_EGO, Traffic
+from simharness.sim.highway.agents import AGENT_CLASSES, HeteroAgent
+from simharness.sim.highway.events import EventScript
+from simharness.sim.highway.params import PARAMS
+from simharness.sim.highway.traffic import B_EGO, Traffic
 from simharness.style import EGO_COLOR, TYPE_COLORS
 
 
@@ -145,7 +146,7 @@ class HeteroHighwayEnv(AbstractEnv):
             "decision_period": 0.5,  # [s] how often each vehicle re-chooses its lateral offset
             "warmup": 60.0,  # [s] run unobserved at reset after filling the road
             "duration": 60.0,  # [s] episode length (truncation)
-            "events": [],  # scripted events: scenario.EventSpec fields as dicts (see highway_events)
+            "events": [],  # scripted events: scenario.EventSpec fields as dicts (see events.py)
             "ego": None,  # {"type": "car", "insert_at": 0.0, "speed": 8.0, "reaction": "reactive"|"cut_in"|"ignore"}
             "observation_count": 32,  # agents in the observation
             "screen_width": 1200,  # [px]

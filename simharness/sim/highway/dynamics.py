@@ -4,7 +4,7 @@ Frame: x along the carriageway (direction of travel), y lateral, + left,
 0 on the carriageway centre line. Every rule here works on (n,) state arrays
 or (R, C) arrays of candidate offsets, so nothing loops over agents in Python;
 the searches over (agent, other) pairs are compiled kernels beside this module
-(`highway_leaders`, `highway_room`, `highway_crossing`).
+(`leaders`, `room`, `crossing`).
 
 Footprints are handled as the axis-aligned boxes that contain each agent's
 rotated rectangle (half extents hx, hy), so keeping those boxes apart keeps the

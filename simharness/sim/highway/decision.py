@@ -1,6 +1,6 @@
 """The lateral decision, compiled: each deciding vehicle scores the lateral offsets it may take and picks one.
 
-Score (m/s) of an offset: the speed one could hold there behind its leader (`highway_leaders.band_leaders`),
+Score (m/s) of an offset: the speed one could hold there behind its leader (`leaders.band_leaders`),
 minus LAT_COST per metre of lateral move, minus a kerb bias for slow vehicles, plus the cut-in bonus; an
 offset whose leader would need harder than comfortable braking scores -inf. A vehicle switches when the best
 offset beats its current plan by more than its switch margin. Same float64 arithmetic, in the same order, as
@@ -13,8 +13,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from simharness.sim.highway_dynamics import LAT_COST, LOOKAHEAD
-from simharness.sim.highway_leaders import band_leaders
+from simharness.sim.highway.dynamics import LAT_COST, LOOKAHEAD
+from simharness.sim.highway.leaders import band_leaders
 
 CUT_IN_BONUS = 3.0  # m/s of score for taking the band in front of the ego (cut_in setting)
 

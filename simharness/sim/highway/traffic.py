@@ -1,7 +1,7 @@
 """The traffic on one straight carriageway: spawning, the step, removal, the ego.
 
 `Traffic` owns a `TrafficState` (arrays) and a numpy Generator; each `step`
-applies the vectorised rules of `highway_dynamics` to all agents at once.
+applies the vectorised rules of `dynamics` to all agents at once.
 Vehicles and pedestrians walking along the edge enter at the upstream end
 (Poisson arrivals at the configured flows; an arrival waits in a queue until
 there is room) and leave at the downstream end; crossing pedestrians appear
@@ -16,14 +16,14 @@ from typing import Any
 import numpy as np
 
 from simharness.scene import AgentType
-from simharness.sim import highway_dynamics as dyn
-from simharness.sim.highway_agents import PARAMS
-from simharness.sim.highway_crossing import crossing_clear
-from simharness.sim.highway_decision import choose_offsets
-from simharness.sim.highway_dynamics import CROSSING, VEHICLE, WALKING, TrafficState
-from simharness.sim.highway_events import EventScript
-from simharness.sim.highway_leaders import leaders
-from simharness.sim.highway_room import lateral_room
+from simharness.sim.highway import dynamics as dyn
+from simharness.sim.highway.crossing import crossing_clear
+from simharness.sim.highway.decision import choose_offsets
+from simharness.sim.highway.dynamics import CROSSING, VEHICLE, WALKING, TrafficState
+from simharness.sim.highway.events import EventScript
+from simharness.sim.highway.leaders import leaders
+from simharness.sim.highway.params import PARAMS
+from simharness.sim.highway.room import lateral_room
 
 EDGE_GAP = 0.2  # m kept between a vehicle and the carriageway edge
 PED_SPACING = 1.5  # m along the road between two crossing pedestrians at their start
@@ -67,7 +67,7 @@ class Traffic:
         self.next_crossing = (self.rng.exponential(3600.0 / config["crossing_rate"])
                               if config["crossing_rate"] > 0 else np.inf)
         self.lane_centres = self._lane_centres()
-        self.script: EventScript | None = None  # scripted events (highway_events), set by the env after warm-up
+        self.script: EventScript | None = None  # scripted events (events.py), set by the env after warm-up
 
     # ------------------------------------------------------------------ lookup
     def row_of(self, uid: int, missing: int | None = None) -> int:
