@@ -13,7 +13,10 @@ the env layer proper costs on top of its own simulator: step() CPU beyond the si
 (observation, reward, ego safety, gym wrappers; the simulator under a random, weaving ego works harder than
 in the raw loop's cruise, which this leaves out).
 
-Usage: python bench/envs.py [--steps 1000] [--rounds 5] [--env ID] [--old REV]
+With --reward-table: the default reward's return under three fixed policies (full braking, full throttle,
+holding speed), 10 episodes each per env (reset(seed=s) for s in 0..9): mean return, collisions, steps.
+
+Usage: python bench/envs.py [--steps 1000] [--rounds 5] [--env ID] [--old REV] [--reward-table]
   --old REV  also measure the env of git revision REV (checked out into a temporary worktree, run in a
              subprocess after this run's loops): its env-steps/s and env layer, for a before/after table.
 Each loop runs 20 untimed steps first (a fresh checkout compiles its numba kernels on the first calls).
@@ -156,6 +159,50 @@ def measure(steps: int, rounds: int, env_ids: tuple[str, ...] = ENVS, variants: 
     return out
 
 
+FIXED_POLICIES = {"brake": (-1.0, 0.0), "throttle": (1.0, 0.0), "hold": (0.0, 0.0)}  # continuous actions
+
+
+def reward_table(episodes: int = 10, env_ids: tuple[str, ...] = ENVS) -> dict[str, dict[str, dict[str, float]]]:
+    """Return, collision share, steps and progress (m) of each fixed policy over `episodes` seeded episodes
+    (seeds 0..episodes-1, the same for every policy) of each env at its default config."""
+    import gymnasium as gym
+    import numpy as np
+
+    import simharness.envs  # noqa: F401
+
+    out: dict[str, dict[str, dict[str, float]]] = {}
+    for env_id in env_ids:
+        env = gym.make(f"simharness/{env_id}")
+        out[env_id] = {}
+        for name, action in FIXED_POLICIES.items():
+            act = np.asarray(action, np.float32)
+            returns, collided, steps, progress = [], [], [], []
+            for seed in range(episodes):
+                env.reset(seed=seed)
+                total, n, done, info = 0.0, 0, False, {}
+                while not done:
+                    _, r, term, trunc, info = env.step(act)
+                    total, n, done = total + r, n + 1, term or trunc
+                returns.append(total)
+                collided.append(float(info["collided"]))
+                steps.append(n)
+                progress.append(info["progress_m"])
+            out[env_id][name] = {"return": float(np.mean(returns)), "return_min": float(np.min(returns)),
+                                 "return_max": float(np.max(returns)), "collided": float(np.mean(collided)),
+                                 "steps": float(np.mean(steps)), "progress_m": float(np.mean(progress))}
+        env.close()
+    return out
+
+
+def print_reward_table(table: dict[str, dict[str, dict[str, float]]]) -> None:
+    print(f"{'env':16s} {'policy':9s} {'return':>8s} {'[min, max]':>18s} {'collided':>8s} {'steps':>6s} "
+          f"{'progress m':>10s}")
+    for env_id, rows in table.items():
+        for name, r in rows.items():
+            print(f"{env_id:16s} {name:9s} {r['return']:8.1f} [{r['return_min']:7.1f}, {r['return_max']:7.1f}] "
+                  f"{r['collided']:8.0%} {r['steps']:6.1f} {r['progress_m']:10.1f}")
+
+
 def measure_old(rev: str, steps: int, rounds: int, env_ids: tuple[str, ...] = ENVS) -> dict[str, dict]:
     """`measure` (without variants) of revision `rev` (its own simharness, default config) in a subprocess."""
     root = Path(__file__).resolve().parents[1]
@@ -181,8 +228,15 @@ def main() -> None:
     p.add_argument("--rounds", type=int, default=5, help="interleaved chunks")
     p.add_argument("--old", default=None, help="git revision to compare with")
     p.add_argument("--env", choices=ENVS, default=None, help="one env only")
+    p.add_argument("--reward-table", action="store_true", help="fixed policies' returns instead of speeds")
+    p.add_argument("--episodes", type=int, default=10, help="episodes per policy for --reward-table")
     a = p.parse_args()
     ids = (a.env,) if a.env else ENVS
+    if a.reward_table:
+        table = reward_table(a.episodes, ids)
+        print_reward_table(table)
+        print(json.dumps(table))
+        return
     res = measure(a.steps, a.rounds, ids)
     old = measure_old(a.old, a.steps, a.rounds, ids) if a.old else {}
     print(f"{'env':16s} {'raw fr/s':>9s} {'env st/s':>9s} {'share':>6s} {'in reset':>8s} {'step-only st/s':>15s} "

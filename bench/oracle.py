@@ -6,7 +6,7 @@ same episode (the loop's online error). Printed per scenario x reaction: mean on
 inexact forecasts (blends served where no fixed point exists) / mismatches per episode, wall seconds per
 episode and simulated seconds per wall second (loop only; target >= 2x real time on one core).
 
-    .venv/bin/python bench/oracle.py                          # 10 seeds x 60 s (issue 11's figures)
+    .venv/bin/python bench/oracle.py                          # 10 seeds x 60 s (the results page's figures)
     .venv/bin/python bench/oracle.py --seeds 0-2 --duration 20  # a quick look
 """
 

@@ -1,9 +1,9 @@
-"""Issue 14's goals on the real samples (../shared/data), measured end to end with `simharness` commands.
+"""Real-data figures on the samples (../shared/data), measured end to end with `simharness` commands.
 
     python bench/real_goals.py                              # all five parts, 2 seeds (about 30 min on 2 shared cores)
     python bench/real_goals.py --parts traf,sim2real --reuse  # some parts; keep finished runs
 
-Parts (each prints a markdown table; the numbers in docs/results.md "Issue 14: real data" come from here):
+Parts (each prints a markdown table; the numbers in docs/results.md (open loop, real data) come from here):
 - eth: ETH/UCY leave-one-scene-out over the scenes in ../shared/data/eth_ucy, each fold laid out as Social-GAN
   does (test/<held>.txt; train/<other>_train.txt and val/<other>_val.txt, the first 80% / last 20% of each other
   scene's lines), so training validates on the `*_val` files; TraPHic vs constant velocity, `eth-ucy` protocol.

@@ -1,14 +1,16 @@
-"""Closed-loop scorecard of the PPO policy (bench/train_ppo.py) beside the sampling planner's egos.
+"""Closed-loop scorecard of a trained policy (bench/train_ppo.py) beside the prediction-driven planner.
 
-On `highway_mixed_dense` (the scenario the policy was trained on), the same seeds for every ego:
-the shipped PPO policy driving through `PolicyPlanner`, and the sampling planner fed TraPHic,
-constant velocity and the oracle (on highway the oracle steps a copy of the live simulator: exact
-futures). Scored by `simharness.closedloop.score_episode` from the recorded Scene, mean [95% bootstrap
-CI] by `aggregate`; writes each ego's aggregate (--out/EGO.json) and the table of all egos scored
-there on the same seeds and duration (--out/scorecard.txt).
+The same held-out seeds for every ego (training never resets the simulator with them): the policy
+driving through `PolicyPlanner` (its episode ends at its first collision, as in its gym env), and the
+default prediction-driven planner fed each predictor named in --egos (const-vel, traphic, oracle).
+Every episode is run by `simharness.closedloop.run_episode` and scored by `score_episode` from the
+recorded Scene; mean [95% bootstrap CI] by `aggregate`. Writes each ego's aggregate (--out/EGO.json)
+and the table of the egos scored there on the same scenario, seeds and duration (--out/scorecard.txt).
+`simharness closedloop SCENARIO --planner ppo --seeds 100-109` scores the shipped policy the same way.
 
-Usage: python bench/score_ppo.py [--seeds 0-9] [--duration 30] [--egos ppo,traphic,const-vel,oracle]
-                                 [--policy simharness/policies/ppo_highway_dense.zip] [--out runs/bench/score_ppo]
+Usage: python bench/score_ppo.py [--scenario highway_mixed_dense] [--seeds 100-109] [--duration 60]
+                                 [--egos ppo,const-vel] [--policy simharness/policies/ppo_highway_dense.zip]
+                                 [--out runs/bench/score_ppo]
 """
 
 from __future__ import annotations
@@ -30,59 +32,44 @@ from simharness.closedloop import (  # noqa: E402
     aggregate,
     prepare_spec,
     run_episode,
-    score_episode,
     scorecard_table,
-    simulate,
 )
-from simharness.policy_planner import SHIPPED, load_policy_planner  # noqa: E402
+from simharness.policy_planner import SHIPPED  # noqa: E402
 from simharness.scenario import load_scenario  # noqa: E402
-
-EGOS = ("traphic", "const-vel", "oracle")
-
-
-def policy_episode(spec, seed: int, policy: Path, config: LoopConfig) -> dict:  # noqa: ANN001
-    """One closed-loop episode with the policy driving; scores as `run_episode` gives them."""
-    planner = load_policy_planner(policy)
-    t0 = time.perf_counter()
-    scene, issued, _, timing = simulate(spec, seed, None, planner, config)
-    scores = score_episode(scene, issued, config)
-    loop_s = timing["sim"] + timing["predict"] + timing["plan"]
-    scores.update({"seed": seed, "predictor": "ppo", "wall_s": time.perf_counter() - t0,
-                   "realtime_factor": scene.num_frames * scene.dt / max(loop_s, 1e-9)})
-    return scores
 
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--seeds", default="0-9")
-    p.add_argument("--duration", type=float, default=30.0)
+    p.add_argument("--scenario", default="highway_mixed_dense")
+    p.add_argument("--seeds", default="100-109", help="held-out seeds, e.g. 100-109")
+    p.add_argument("--duration", type=float, default=None, help="seconds per episode (default: the scenario's)")
     p.add_argument("--policy", type=Path, default=SHIPPED)
-    p.add_argument("--egos", default=",".join(("ppo", *EGOS)), help="comma list of ppo, traphic, const-vel, oracle")
+    p.add_argument("--egos", default="ppo,const-vel", help="comma list: ppo (the policy) and predictor names")
     p.add_argument("--out", type=Path, default=Path("runs/bench/score_ppo"))
     a = p.parse_args()
     lo, _, hi = a.seeds.partition("-")
     seeds = list(range(int(lo), int(hi or lo) + 1))
-    spec = prepare_spec(load_scenario("highway_mixed_dense").with_overrides({"duration": a.duration}))
+    spec = load_scenario(a.scenario)
+    spec = prepare_spec(spec.with_overrides({"duration": a.duration}) if a.duration else spec)
     config = LoopConfig()
     a.out.mkdir(parents=True, exist_ok=True)
     t0 = time.time()
     egos = [e for e in a.egos.split(",") if e]
     for ego in egos:  # each ego's aggregate lands in its own file, so egos can be scored in separate runs
-        if ego == "ppo":
-            eps = [policy_episode(spec, s, a.policy, config) for s in seeds]
+        if ego == "ppo":  # the loop's forecasts are not the policy's input; const-vel is the cheapest to make
+            jobs = [EpisodeJob(spec, s, "const-vel", config, keep_scene=False, planner=str(a.policy)) for s in seeds]
         else:
-            eps = [run_episode(EpisodeJob(spec, s, ego, config, keep_scene=False))["scores"] for s in seeds]
-        (a.out / f"{ego}.json").write_text(json.dumps({"spec": spec.name, "duration": a.duration, "seeds": seeds,
+            jobs = [EpisodeJob(spec, s, ego, config, keep_scene=False) for s in seeds]
+        eps = [run_episode(job)["scores"] for job in jobs]
+        (a.out / f"{ego}.json").write_text(json.dumps({"spec": spec.name, "duration": spec.duration, "seeds": seeds,
                                                        "policy": str(a.policy) if ego == "ppo" else None,
                                                        "scores": aggregate(eps)}, default=float) + "\n")
         print(f"{ego} done {time.time() - t0:.0f} s", flush=True)
     results = {}
-    for ego in ("ppo", *EGOS):
-        f = a.out / f"{ego}.json"
-        if f.is_file():
-            got = json.loads(f.read_text())
-            if got["seeds"] == seeds and got["duration"] == a.duration:
-                results[ego] = got["scores"]
+    for f in sorted(a.out.glob("*.json")):
+        got = json.loads(f.read_text())
+        if got.get("seeds") == seeds and got.get("duration") == spec.duration and got.get("spec") == spec.name:
+            results["ppo policy" if f.stem == "ppo" else f"planner + {f.stem}"] = got["scores"]
     table = scorecard_table(results)
     print(table)
     (a.out / "scorecard.txt").write_text(table + "\n")

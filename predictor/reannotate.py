@@ -25,7 +25,7 @@ VERSION = 1  # of the copies' making: part of their windows' cache key
 Level = tuple[str, float]
 
 # The copies `simharness train` makes by default for a gated residual model on recorded data: one smoothed over 0.5 s,
-# one with 0.1 m of noise (docs/results.md, "Issue 14, session 10"). None on simulator output (exact positions: the
+# one with 0.1 m of noise (docs/results.md). None on simulator output (exact positions: the
 # copies cost 1-7% there) nor for the paper's form (no gate to read the noise level: they cost up to 25%).
 RECORDED: tuple[Level, ...] = (("smooth", 0.5), ("noise", 0.1))
 

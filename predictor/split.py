@@ -83,6 +83,32 @@ def split_scenes(scene_ids: Sequence[str], val: float = 0.15, test: float = 0.15
             "train": sorted(ids[n_test + n_val:])}
 
 
+def describe_split(split: dict[str, list[str]], scene_ids: Sequence[str], test_scenes: Sequence[str] | None = None
+                   ) -> str:
+    """Two lines for a person: which scenes `split` holds out for test and why, then what it validates and
+    trains on, e.g. "holding out 3 of 17 scenes for test (hash split; pass --test-scenes to choose): A, B, C"."""
+    if test_scenes:
+        why = "named by --test-scenes"
+    elif any(_own_split(i)[1] == "val" for i in scene_ids):
+        why = "the data set's own split: scene ids without _train / _val; pass --test-scenes to choose"
+    else:
+        why = "hash split; pass --test-scenes to choose"
+    head = (f"holding out {len(split['test'])} of {len(set(scene_ids))} scenes for test ({why}): "
+            f"{name_list(split['test'])}")
+    if set(split["val"]) == set(split["train"]):
+        return (f"{head}\none scene left to train on, so validation (checkpoint choice) used the training scene(s) "
+                f"{name_list(split['train'])}")
+    return (f"{head}\nvalidating (checkpoint choice) on {len(split['val'])} scene(s): {name_list(split['val'])}; "
+            f"training on {len(split['train'])}")
+
+
+def name_list(names: Sequence[str], most: int = 10) -> str:
+    """"A, B, C" for a printed line; the first `most` and a count of the rest for long lists."""
+    names = list(names)
+    more = f" and {len(names) - most} more" if len(names) > most else ""
+    return ", ".join(names[:most]) + more
+
+
 def _split_by_suffix(scene_ids: Sequence[str], test_scenes: Sequence[str] | None) -> dict[str, list[str]]:
     """The data set's own split: `*_val` -> val, `*_train` -> train, whole recordings -> test (see split_scenes)."""
     ids = sorted(set(scene_ids))

@@ -28,7 +28,7 @@ from predictor.checkpoint import atomic_write_text, read_config, save_checkpoint
 from predictor.features import FeatureStore, WindowConfig
 from predictor.reannotate import VERSION as REANNOTATE_VERSION
 from predictor.reannotate import Level, copy_id, level_name, parse_levels, reannotated, simulated
-from predictor.split import split_scenes
+from predictor.split import describe_split, split_scenes
 from simharness.errors import UserError
 from simharness.scene import Scene
 
@@ -217,6 +217,8 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
     key, ids, scenes_fn = open_data(data)  # once: opening checks every shard's sha256
     store = _cached_windows(key, scenes_fn, window, progress, cache_dir)
     split = split_scenes(ids, test_scenes=test_scenes)  # test_scenes: leave-one-scene-out by name
+    if progress:
+        print(describe_split(split, ids, test_scenes))
     reannotate = tuple(reannotate)
     if reannotate and store.H < 4:  # no lag-1 product of second differences: no noise level for the gate to read
         print(f"note: no re-annotated copies: {store.H} observed steps show the gate no annotation noise")
@@ -258,7 +260,10 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
     sched: Any = (torch.optim.lr_scheduler.LambdaLR(opt, lambda k: lr_factor(k, total_steps, warm))
                   if lr_schedule == "cosine" else None)
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    from simharness.io.folders import make_folder, refuse_inside_dataset
+
+    refuse_inside_dataset(out)  # the Python route too: a run folder never lands inside a data set
+    make_folder(out)
     config = {"model": model, "model_config": net.cfg.to_dict(), "window": window.to_dict(),
               "frames": {"history": store.H, "future": store.F, "step": store.step},
               "seed": seed, "data": str(data), "data_hash": key, "split": split,
@@ -297,6 +302,14 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
     if select != "loss" and fitted(0) and history[0][select] < best:  # trained starting weights are a candidate
         best, best_epoch = history[0][select], 0
         save_checkpoint(net, out / "model.pt")
+    measure = "loss" if select == "loss" else select.upper()  # what picks the epoch and stops early, as printed
+    if progress:
+        stop = (f"; stopping after {patience} epoch{'s' * (patience != 1)} without a better one"
+                if patience is not None else "")
+        what = "loss (MSE in the warm-up, then NLL)" if select == "loss" else measure
+        print(f"choosing the epoch on validation {what} over {len(val_idx)} windows{stop}")
+        if best_epoch == 0:
+            print(f"starting weights ({init}): validation {measure} {best:.3f}")
     grids = {"nbr": window.neighbour_grid, "hz": window.horizon_grid}
     flips = np.random.default_rng(seed + 2)  # its own stream: the batch order is the same with or without
     scales = np.random.default_rng(seed + 3)
@@ -343,25 +356,31 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
         samples_seen += len(order)
         train_time += secs
         val = _epoch_eval(net, store, val_idx, batch_size, dev)
-        crit = val[kind if select == "loss" else select]
+        key = kind if select == "loss" else select  # the validation measure this epoch is judged on
+        crit = val[key]
         if lr_schedule == "plateau":
             sched.step(crit)
         history.append({"epoch": epoch + 1, "loss": kind, "train": tot / max(nb, 1), **val})
         writer.writerow([epoch + 1, kind, f"{tot / max(nb, 1):.6f}", f"{val['mse']:.6f}", f"{val['nll']:.6f}",
                          f"{math.sqrt(val['mse']):.4f}", f"{secs:.2f}", f"{len(order) / secs:.1f}", f"{epoch_lr:.3g}",
                          f"{val['ade']:.4f}"])
-        if crit < best and fitted(epoch + 1):
+        kept = crit < best and fitted(epoch + 1)
+        if kept:
             best, best_epoch, stale = crit, epoch + 1, 0
             save_checkpoint(net, out / "model.pt")
         else:
             stale += 1
         if progress:
-            tqdm.write(f"epoch {epoch + 1}: {kind} train {tot / max(nb, 1):.3f}  val mse {val['mse']:.3f} "
-                       f"nll {val['nll']:.3f}  ({len(order) / secs:.0f} samples/s)")
+            note = " (best so far, kept)" if kept else "" if fitted(epoch + 1) else " (not a candidate)"
+            rest = ", ".join(f"{k.upper()} {val[k]:.3f}" for k in ("ade", "mse", "nll") if k != key)
+            tqdm.write(f"epoch {epoch + 1}/{epochs}{' warm-up' * (kind == 'mse')}: train "
+                       f"{loss_name(kind, mean_loss)} {tot / max(nb, 1):.3f}, validation {key.upper()} {crit:.3f}"
+                       f"{note}; {rest}; {len(order) / secs:.0f} samples/s")
         atomic_write_text(out / "log.csv", log.getvalue())
         if patience is not None and epoch >= warmup_epochs and stale >= patience:
             if progress:
-                tqdm.write(f"early stop after epoch {epoch + 1}: no better validation {kind} for {stale} epochs")
+                tqdm.write(f"early stop after epoch {epoch + 1}: no better validation {key.upper()} for {stale} "
+                           f"epoch{'s' * (stale != 1)} (best: epoch {best_epoch}, {best:.3f})")
             break
     if best_epoch < 0:  # every validation loss was NaN: no checkpoint, so no run folder either
         (out / "log.csv").unlink(missing_ok=True)
@@ -458,13 +477,14 @@ def train_command(args: argparse.Namespace) -> int:
                 init=getattr(args, "init", None), select=getattr(args, "select", "ade"),
                 augment=getattr(args, "augment", True), scale_jitter=getattr(args, "scale_jitter", 0.0),
                 reannotate=levels)
-    if set(res["config"]["split"]["val"]) & set(res["config"]["split"]["train"]):
-        print(f"note: one scene left to train on, so validation (checkpoint choice) used the training scene(s) "
-              f"{', '.join(res['config']['split']['train'])}")
     select = res["config"]["train"]["select"]
     kind = select if select != "loss" else "nll" if res["best_epoch"] > args.warmup_epochs else "mse"
-    print(f"{args.model}: best epoch {res['best_epoch']} of {res['epochs_run']} (val {kind} {res['best_val']:.3f}), "
-          f"{res['train_samples']} training windows, {res['samples_per_s']:.0f} samples/s -> {args.out}")
+    print(f"{args.model}: kept epoch {res['best_epoch']} of {res['epochs_run']} (validation {kind.upper()} "
+          f"{res['best_val']:.3f}), {res['train_samples']} training windows, {res['samples_per_s']:.0f} samples/s "
+          f"-> {args.out}")
+    more = (f" --protocol {args.protocol}" if getattr(args, "protocol", None) else "") + (
+        f" --test-scenes {','.join(args.test_scenes)}" if getattr(args, "test_scenes", None) else "")
+    print(f"score the held-out scenes: simharness evaluate --data {args.data} --model {args.out}{more}")
     return 0
 
 

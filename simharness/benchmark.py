@@ -67,7 +67,7 @@ class Profile:
     lr_schedule: str = "cosine"
     patience: int | None = None
     mean_loss: str = "mse"
-    select: str = "ade"  # the scored means; "loss" kept Social-GAN's worst early epochs (docs/results.md, session 8)
+    select: str = "ade"  # the scored means; "loss" kept Social-GAN's worst early epochs (docs/results.md)
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -81,7 +81,7 @@ PROFILES: dict[str, Profile] = {
     "medium": Profile("medium", epochs=5, warmup_epochs=2, batch_size=128, lr=1e-3, max_samples=4096, stride=2,
                       max_val_samples=1024),
     # The paper's 16 epochs, batch 128, Adam at 1e-3, on at most 80,000 windows with early stopping: within 3 hours
-    # for all methods on 2 CPU cores (about 1 hour projected at the measured samples/s; docs/results.md, issue 14).
+    # for all methods on 2 CPU cores (about 1 hour projected at the measured samples/s; docs/results.md).
     "full": Profile("full", epochs=16, warmup_epochs=2, batch_size=128, lr=1e-3, max_samples=80_000, stride=1,
                     max_val_samples=4000, patience=3),
 }

@@ -37,7 +37,9 @@ def evaluate(data: Path, predictor: Predictor, protocol: EvalProtocol | str = "t
     """Score `predictor` on the `split` scenes ("test": the held-out scenes of training; "all") -> metrics dict.
 
     test_scenes: the scenes held out by name (leave-one-scene-out, as in `simharness train --test-scenes`);
-    with split "test" they are the scenes scored.
+    with split "test" they are the scenes scored. Without them, a predictor trained on this very data set (its
+    `info` records the data set's content hash and the split, as `simharness train` runs and shipped weights do)
+    is scored on the test scenes its training recorded; any other on the hash split training would hold out.
 
     Keys: ade, fde (mean Euclidean), ade_rmse, fde_rmse, rmse_per_second (list), nll (or None when the
     predictor gives no uncertainty), miss_rate_2m, min_ade/min_fde (sampled forecasts only), samples,
@@ -50,7 +52,10 @@ def evaluate(data: Path, predictor: Predictor, protocol: EvalProtocol | str = "t
 
     protocol = get_protocol(protocol) if isinstance(protocol, str) else protocol
     ds = Dataset(Path(data))
-    if split == "test":
+    recorded = None if test_scenes else recorded_test_scenes(predictor, ds.content_hash, list(ds.scene_ids))
+    if split == "test" and recorded is not None:
+        chosen = recorded
+    elif split == "test":
         chosen = split_scenes(list(ds.scene_ids), test_scenes=test_scenes)["test"]
     elif split == "all":
         if test_scenes:
@@ -58,6 +63,8 @@ def evaluate(data: Path, predictor: Predictor, protocol: EvalProtocol | str = "t
         chosen = list(ds.scene_ids)
     else:
         raise UserError(f"unknown split {split!r}; expected test or all")
+    if progress:
+        print(split_line(split, chosen, list(ds.scene_ids), test_scenes, recorded=recorded is not None))
     preds, truths, valids, sigmas, modes, types, counts = [], [], [], [], [], [], []
     units, step_dt, example, scale, has_scale = None, None, None, 1.0, False
     for sid in tqdm(chosen, desc=f"evaluate {name}".strip(), unit="scene", disable=not progress):
@@ -122,6 +129,38 @@ def evaluate(data: Path, predictor: Predictor, protocol: EvalProtocol | str = "t
     return _finite(out)
 
 
+def recorded_test_scenes(predictor: Predictor, data_hash: str, scene_ids: list[str]) -> list[str] | None:
+    """The test scenes a trained predictor's config records (`info["split"]["test"]`), when it was trained on
+    the data set of content hash `data_hash` and those scenes are in it; None otherwise (another data set, a
+    predictor without a recorded split)."""
+    info = getattr(predictor, "info", None)
+    if not isinstance(info, dict) or info.get("data_hash") != data_hash:
+        return None
+    test = (info.get("split") or {}).get("test") if isinstance(info.get("split"), dict) else None
+    if not isinstance(test, list) or not test or not all(isinstance(s, str) and s in scene_ids for s in test):
+        return None
+    return sorted(set(test))
+
+
+def split_line(split: str, chosen: list[str], scene_ids: list[str], test_scenes: list[str] | None,
+               recorded: bool = False) -> str:
+    """The line `evaluate` prints first: which scenes it scores, of how many, and why those (recorded: the
+    test scenes the model's training recorded in its config.json)."""
+    head = f"scoring split {split!r}: {len(chosen)} of {len(set(scene_ids))} scenes"
+    if split == "all":
+        return head
+    if test_scenes:
+        why = "named by --test-scenes"
+    elif recorded:
+        why = "the ones the model's training held out, as its run config records"
+    elif any(s.endswith("_val") for s in scene_ids):
+        why = "the data set's own test scenes, ids without _train / _val"
+    else:
+        why = "the ones `simharness train` holds out by a hash of the scene ids"
+    names = ", ".join(chosen[:10]) + (f" and {len(chosen) - 10} more" if len(chosen) > 10 else "")
+    return f"{head} ({why}; --split all for every scene): {names}"
+
+
 def dataclasses_dict(protocol: EvalProtocol) -> dict[str, Any]:
     import dataclasses
 
@@ -154,10 +193,10 @@ def format_table(results: dict[str, dict[str, Any]]) -> str:
 def evaluate_command(args: argparse.Namespace) -> int:
     """`simharness evaluate --data DIR --model RUN|traphic|const-vel [--out DIR] [--protocol] [--split]`."""
     from simharness.io.folders import prepare_output
-    from simharness.predictors import load_predictor
+    from simharness.plugins import label, load_predictor
 
     predictor = load_predictor(args.model)
-    name = Path(str(args.model)).name
+    name = label(args.model)  # "dir/mine.py:Model" -> "mine:Model"; a run folder -> its name
     out_dir = Path(args.out) if args.out is not None else Path("runs/evaluate") / name
     prepare_output(out_dir, getattr(args, "force", False))
     res = evaluate(args.data, predictor, get_protocol(args.protocol), split=args.split, figure_dir=out_dir, name=name,

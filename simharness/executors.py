@@ -67,6 +67,17 @@ def _one_line(e: BaseException) -> str:
     return f"{type(e).__name__}: {e}".strip().splitlines()[0]
 
 
+def log_retry(job: Any, attempt: int, max_retries: int, error: str | None) -> None:
+    """One stderr line per retried job: a killed worker or a simulator crash is never retried silently."""
+    if hasattr(job, "seed"):  # an episode: its predictor and seed name it
+        label = " ".join(str(x) for x in (getattr(job, "predictor", None), f"seed {job.seed}") if x)
+    else:
+        text = repr(job)
+        label = f"job {text if len(text) <= 80 else text[:77] + '...'}"
+    print(f"simharness: {label}: attempt {attempt} of {max_retries + 1} ended ({error}); retrying in a fresh process",
+          file=sys.stderr, flush=True)
+
+
 def _check_policy(workers: int, max_retries: int) -> None:
     if workers < 1:
         raise UserError(f"--workers: expected a positive number of processes, got {workers}")
@@ -161,6 +172,7 @@ class LocalExecutor:
                     if reusable:
                         idle.append(w)
                     if retryable and w.attempt <= self.max_retries:
+                        log_retry(w.job, w.attempt, self.max_retries, result.error)
                         pending.append((w.job, w.attempt + 1))  # next to start: a retry keeps its place in line
                     else:
                         yield dataclasses.replace(result, attempts=w.attempt)
@@ -261,6 +273,7 @@ class RayExecutor:
                         job, attempt = running.pop(ref)
                         result, retryable = self._collect(ray, ref, job)
                         if retryable and attempt <= self.max_retries:
+                            log_retry(job, attempt, self.max_retries, result.error)
                             pending.append((job, attempt + 1))
                         else:
                             yield dataclasses.replace(result, attempts=attempt)

@@ -5,7 +5,9 @@ hands it to any `Executor` (local processes now, a cluster later). A run can be 
 point: shards appear only when complete (temporary name, then rename), the manifest is refreshed
 every few seconds and at the end (Ctrl-C included), and a rerun cleans temporary leftovers, checks every
 shard against the manifest (size, sha256), remakes damaged ones, lists complete ones a killed run left
-unlisted, and runs only the missing seeds. One writer at a time per folder (`folders.writer_lock`).
+unlisted, and runs only the missing seeds. A shard is removed only when its own bytes show it damaged
+(`parquet.shard_damage`); a manifest entry that disagrees with an intact shard is repaired. One writer at a
+time per folder (`folders.writer_lock`); a run refused up front leaves the folder as it was.
 """
 
 from __future__ import annotations
@@ -25,7 +27,15 @@ from tqdm import tqdm
 
 from simharness.errors import SimulatorError, UserError
 from simharness.executors import make_executor
-from simharness.io.folders import LOCK, writer_lock
+from simharness.io.folders import (
+    LOCK,
+    check_writable,
+    make_folder,
+    open_append,
+    refuse_inside_dataset,
+    refuse_symlinks,
+    writer_lock,
+)
 from simharness.io.parquet import (
     LEGACY_MANIFEST,
     MANIFEST,
@@ -35,6 +45,7 @@ from simharness.io.parquet import (
     describe_shard,
     manifest_path,
     read_manifest,
+    shard_damage,
     shard_problem,
     software_versions,
     write_manifest,
@@ -88,7 +99,7 @@ def generate_scene(spec: ScenarioSpec, seed: int, out: Path) -> dict[str, Any]:
     scene_id = path.stem
     meta = {
         "source": SOURCE, "scene_id": scene_id, "scenario": spec.name, "backend": spec.backend, "seed": seed,
-        "base_seed": spec.seed, "sim_seed": spec.seed + seed, "config_hash": spec.config_hash(), "units": "m",
+        "base_seed": spec.seed, "sim_seed": spec.sim_seed(seed), "config_hash": spec.config_hash(), "units": "m",
         "road": road.to_dict() if road is not None else None, "versions": software_versions(),
     }
     scene = scene_from_frames(frames, spec.dt, meta)
@@ -120,15 +131,11 @@ def dataset_info(spec: ScenarioSpec, seeds: Sequence[int]) -> dict[str, Any]:
             "base_seed": spec.seed, "seeds": sorted(int(s) for s in seeds), "spec": spec.to_dict()}
 
 
-def _existing_entries(spec: ScenarioSpec, out: Path, seeds: Sequence[int]) -> tuple[dict[int, dict[str, Any]],
-                                                                                    list[str]]:
-    """(complete, intact shards already in `out` by seed, notes for the user); refuses another scenario's folder.
-
-    A listed shard must match its manifest entry (size, sha256); an unlisted one (a run killed before it
-    refreshed the manifest) must read as a complete shard of this config. Damaged shards are removed, so
-    that this run remakes them (or a rerun with their seed does).
-    """
+def _refuse_foreign(spec: ScenarioSpec, out: Path) -> dict[str, dict[str, Any]]:
+    """Manifest entries by file of the data set in `out`; UserError if `out` holds another scenario's data set,
+    a file that is not part of one, or a symbolic link. Writes nothing, so it runs before the lock is taken."""
     known: dict[str, dict[str, Any]] = {}
+    refuse_symlinks(out)
     if manifest_path(out).is_file():
         manifest = read_manifest(out)
         info = manifest.get("info", {})
@@ -143,21 +150,35 @@ def _existing_entries(spec: ScenarioSpec, out: Path, seeds: Sequence[int]) -> tu
     if strangers:
         raise UserError(f"{out}: holds {strangers[0]!r}, which is not part of a simharness data set; choose an "
                         f"empty or new --out")
+    return known
+
+
+def _existing_entries(spec: ScenarioSpec, out: Path, seeds: Sequence[int]) -> tuple[dict[int, dict[str, Any]],
+                                                                                    list[str]]:
+    """(complete, intact shards already in `out` by seed, notes for the user); refuses another scenario's folder.
+
+    A listed shard that matches its manifest entry (size, sha256) is taken as is. One that does not, and an
+    unlisted one (a run killed before it refreshed the manifest), is judged by its own bytes: intact and of
+    this config, it is kept (and a wrong entry repaired); damaged, it is removed, so that this run remakes it
+    (or a rerun with its seed does).
+    """
+    known = _refuse_foreign(spec, out)
     entries, notes, wanted = {}, [], set(seeds)
     for path in sorted(out.glob("scene-*.parquet")):
         if not SHARD_NAME.fullmatch(path.name):
             continue
         seed = int(SHARD_NAME.fullmatch(path.name).group(1))
         entry = known.get(path.name)
-        problem = shard_problem(path, entry) if entry is not None else None
-        if entry is None:
-            try:
-                entry = describe_shard(path)
-            except UserError:
-                problem = "not a readable Parquet shard"
-            else:
-                _check_shard(entry, spec, path)
-                entry = {k: v for k, v in entry.items() if k != "meta"}
+        problem = shard_problem(path, entry) if entry is not None else "unlisted"
+        if problem:
+            listed_problem, problem = problem, shard_damage(path)
+            if problem is None:
+                described = describe_shard(path)
+                _check_shard(described, spec, path)
+                if entry is not None:
+                    notes.append(f"{path.name}: {listed_problem.split(' (')[0]}, yet the shard reads intact (page "
+                                 f"checksums, metadata, rows); its {MANIFEST} entry is repaired")
+                entry = {k: v for k, v in described.items() if k != "meta"}
         if problem:
             path.unlink()
             notes.append(f"{path.name}: damaged ({problem}); removed, "
@@ -178,10 +199,14 @@ def generate(spec: ScenarioSpec, seeds: Sequence[int], out: Path, workers: int =
     seconds, agent_frames_per_s, collisions, teleports}.
     """
     out = Path(out)
+    for seed in seeds:  # the one seed the simulator gets must be a 32-bit signed one
+        spec.sim_seed(seed)
+    check_writable(out)
+    refuse_inside_dataset(out, include_self=False)  # `out` may be this scenario's own data set (a resume)
     pool = make_executor(executor, workers, address)
-    if out.exists() and not out.is_dir():
-        raise UserError(f"{out}: --out names a file; expected a data set folder")
-    out.mkdir(parents=True, exist_ok=True)
+    if out.is_dir():
+        _refuse_foreign(spec, out)  # before the lock: a refused run leaves no `_lock` behind
+    make_folder(out)
     with writer_lock(out):
         return _generate_locked(spec, seeds, out, pool, workers, executor, progress)
 
@@ -249,7 +274,8 @@ def _generate_locked(spec: ScenarioSpec, seeds: Sequence[int], out: Path, pool: 
            "executor": executor, "versions": software_versions(), **summary}
     if (out / LEGACY_RUN_LOG).is_file() and not (out / RUN_LOG).exists():
         os.replace(out / LEGACY_RUN_LOG, out / RUN_LOG)
-    with open(out / RUN_LOG, "a", encoding="utf-8") as f:  # run details live here, never in shards/manifest
+    fd = open_append(out, RUN_LOG)  # run details live here, never in shards/manifest; never through a link
+    with os.fdopen(fd, "a", encoding="utf-8") as f:
         f.write(json.dumps(log, sort_keys=True) + "\n")
     return summary
 

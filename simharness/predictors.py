@@ -1,7 +1,8 @@
-"""Name registry of predictors: the one door from the harness to predictor/.
+"""The built-in predictors: names that ship with the package, and run folders of `simharness train`.
 
-`load_predictor("const-vel" | "const-vel:N" | "traphic" | "traphic-b" | ... | RUN_FOLDER)` returns a `Predictor`.
-Add a predictor with one line in PREDICTORS (name -> zero-argument factory).
+`builtin_predictor("const-vel" | "const-vel:N" | "traphic" | "traphic-b" | ... | RUN_FOLDER)` returns a
+`Predictor` (None for other names). Everything else (a user's `file.py:NAME`, `module:NAME`, installed
+entry points) is resolved by `simharness.plugins.load_predictor`, the loader every command calls.
 """
 
 from __future__ import annotations
@@ -57,8 +58,9 @@ def available() -> list[str]:
     return [*PREDICTORS, *[e for e in extra if e not in PREDICTORS]]
 
 
-def load_predictor(name_or_run: str | Path) -> Predictor:
-    """A predictor by registered name, shipped weights name, or a run folder from `simharness train`."""
+def builtin_predictor(name_or_run: str | Path) -> Predictor | None:
+    """A predictor by registered name, shipped weights name, or run folder from `simharness train`; None for any
+    other name (a plug-in, or unknown)."""
     key = str(name_or_run)
     if key in PREDICTORS:
         return PREDICTORS[key]()
@@ -71,8 +73,14 @@ def load_predictor(name_or_run: str | Path) -> Predictor:
         from predictor.predict import ModelPredictor
 
         return ModelPredictor.from_run(path)
-    raise UserError(f"unknown predictor {key!r}; expected one of {', '.join(available())}, const-vel:N or a run folder "
-                    "written by `simharness train`")
+    return None
+
+
+def load_predictor(name_or_run: str | Path) -> Predictor:
+    """Any predictor name: built-in, run folder or plug-in (`simharness.plugins.load_predictor`)."""
+    from simharness.plugins import load_predictor as load
+
+    return load(name_or_run)
 
 
 def split_scenes(scene_ids: list[str], test_scenes: list[str] | None = None) -> dict[str, list[str]]:

@@ -8,6 +8,7 @@ a file. Other modules add their figures here, one function each.
 from __future__ import annotations
 
 import io
+from collections.abc import Sequence
 from pathlib import Path
 
 import matplotlib
@@ -16,8 +17,10 @@ matplotlib.use("Agg")  # headless everywhere; no display on CI
 matplotlib.rcParams["savefig.bbox"] = "tight"  # keep legends placed outside the axes
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from matplotlib.artist import Artist  # noqa: E402
 from matplotlib.axes import Axes  # noqa: E402
 from matplotlib.collections import LineCollection, PolyCollection  # noqa: E402
+from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.patches import Patch  # noqa: E402
 
 from simharness.io.parquet import atomic_write_bytes  # noqa: E402
@@ -80,14 +83,38 @@ def draw_trails(ax: Axes, scene: Scene, frame: int, seconds: float = 3.0) -> Non
     ax.add_collection(LineCollection(segs, colors=cols, linewidths=0.8, alpha=0.6, zorder=2))
 
 
-def type_legend(ax: Axes, types: np.ndarray | None = None, ego: bool = False) -> None:
-    """Legend of the agent types present (all if None)."""
+def type_legend(ax: Axes, types: np.ndarray | None = None, ego: bool = False, extra: Sequence[Artist] = (),
+                ncol: int = 1) -> None:
+    """Legend of the agent types present (all if None), the ego if drawn, then `extra` handles (lines etc.)."""
     present = sorted({int(t) for t in types}) if types is not None else [int(t) for t in AgentType]
     handles = [Patch(color=TYPE_COLORS[AgentType(t)], label=AgentType(t).label) for t in present]
     if ego:
         handles.append(Patch(color=EGO_COLOR, label="ego"))
     # Outside the axes, to the right: over the road it hid agents.
-    ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7, framealpha=0.8)
+    ax.legend(handles=[*handles, *extra], loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7, framealpha=0.8,
+              ncol=ncol)
+
+
+def label_ego(ax: Axes, xy: np.ndarray) -> None:
+    """Write "ego" above the ego's footprint at xy (2,) metres, so that it is found at a glance."""
+    ax.annotate("ego", xy=(float(xy[0]), float(xy[1])), xytext=(0, 14), textcoords="offset points", ha="center",
+                fontsize=8, fontweight="bold", color="white", zorder=7,
+                bbox={"boxstyle": "round,pad=0.2", "facecolor": EGO_COLOR, "edgecolor": "none"},
+                arrowprops={"arrowstyle": "-", "color": EGO_COLOR, "lw": 1.0})
+
+
+def ego_window(ego_xy: np.ndarray, road: RoadGeometry | None, behind: float = 20.0, ahead: float = 45.0,
+               margin: float = 1.0) -> tuple[float, float, float, float]:
+    """(xmin, ymin, xmax, ymax) metres of a view that follows the ego at ego_xy (2,): `behind` and `ahead` of it
+    along x, and across the road's whole width (its bounds plus `margin`), so no half of the frame is empty;
+    without a road, 8 m either side of the ego."""
+    cx, cy = float(ego_xy[0]), float(ego_xy[1])
+    if road is not None and (road.drivable or road.sidewalks):
+        _, y0, _, y1 = road.bounds()
+        y0, y1 = min(y0, cy - 3.0) - margin, max(y1, cy + 3.0) + margin  # an ego off the road stays in view
+    else:
+        y0, y1 = cy - 8.0, cy + 8.0
+    return cx - behind, y0, cx + ahead, y1
 
 
 def plot_frame(scene: Scene, frame: int, path: Path | str, road: RoadGeometry | None = None,
@@ -121,19 +148,24 @@ def plot_frame(scene: Scene, frame: int, path: Path | str, road: RoadGeometry | 
     ax.set_ylabel(f"y ({scene.units})")
     ax.set_title(title or f"{scene.meta.get('scenario', '')} t = {scene.times[frame]:.1f} s, "
                           f"{int(valid.sum())} agents")
-    type_legend(ax, scene.agent_type[valid], ego=scene.ego >= 0)
+    has_ego = 0 <= scene.ego and bool(valid[scene.ego])
+    if has_ego:
+        label_ego(ax, scene.xy[scene.ego, frame])
+    type_legend(ax, scene.agent_type[valid], ego=has_ego)
     return _save(fig, path)
 
 
 # ---------------------------------------------------------------------- closed loop (simharness.closedloop)
 def animate_episode(scene: Scene, path: Path | str, road: RoadGeometry | None = None,
                     forecast_frames: list[int] | None = None, forecasts: list | None = None,
-                    view: float = 45.0, max_frames: int = 150, fps: int = 5) -> Path:
-    """GIF of a closed-loop episode following the ego: traffic by type, the ego black, its latest
-    forecast of the others (lines, 1-sigma end circles), agents touching the ego edged red.
+                    behind: float = 20.0, ahead: float = 45.0, max_frames: int = 150, fps: int = 5) -> Path:
+    """GIF of a closed-loop episode following the ego: traffic by type, the ego black and labelled, its latest
+    forecast of the others (lines, 1-sigma end circles), agents touching the ego edged red; axes in metres and
+    a legend beside the road.
 
     scene: the recorded episode (ego row set); forecast_frames/forecasts: frame index and `Forecast` of
-    each prediction; view: half-width of the window around the ego (m).
+    each prediction; behind/ahead: metres of road shown behind and ahead of the ego (the view spans the
+    road's width across).
     """
     import imageio.v2 as imageio
     from matplotlib.patches import Circle
@@ -147,7 +179,18 @@ def animate_episode(scene: Scene, path: Path | str, road: RoadGeometry | None = 
     body = box_heading(scene)  # the bodies' heading, as scored (SUMO's boxes stay lane-aligned)
     contact = ego_contact(scene.xy, body, scene.length, scene.width, scene.valid, e) if e >= 0 else None
     issued = np.asarray(forecast_frames or [], int)
-    fig, ax = plt.subplots(figsize=(8, 3.2), dpi=90)
+
+    def centre(f: int) -> np.ndarray:
+        return scene.xy[e, f] if e >= 0 else scene.xy[scene.valid[:, f], f].mean(0)
+
+    x0, y0, x1, y1 = ego_window(centre(frames[0]), road, behind, ahead)
+    # size the figure to the window's shape (+ room for the legend), so the road fills the frame
+    width = 7.5
+    fig, ax = plt.subplots(figsize=(width + 3.0, max(2.2, width * (y1 - y0) / (x1 - x0) + 0.8)), dpi=100)
+    extra = [Line2D([], [], color="#444444", lw=0.9, label="forecast (mean)"),
+             Line2D([], [], color="#444444", lw=0, marker="o", markerfacecolor="none", label="forecast 1-sigma at 5 s"),
+             Patch(facecolor="white", edgecolor="red", lw=1.2, label="touching the ego")]
+    types = scene.agent_type[scene.valid[:, frames].any(1)]
     images = []
     for f in frames:  # one image per frame; agents drawn vectorised inside
         ax.clear()
@@ -169,14 +212,20 @@ def animate_episode(scene: Scene, path: Path | str, road: RoadGeometry | None = 
                 for m in range(len(fc.agent_id)):  # drawing only
                     ax.add_patch(Circle(fc.mean[m, -1], float(fc.sigma_rho[m, -1, :2].mean()), fill=False,
                                         edgecolor="#444444", linewidth=0.4, alpha=0.5, zorder=4))
-        cx, cy = scene.xy[e, f] if e >= 0 else scene.xy[valid, f].mean(0)
-        ax.set_xlim(cx - view, cx + view)
-        ax.set_ylim(cy - view * 0.3, cy + view * 0.3)
+        x0, y0, x1, y1 = ego_window(centre(f), road, behind, ahead)
+        ax.set_xlim(x0, x1)
+        ax.set_ylim(y0, y1)
         ax.set_aspect("equal")
+        if e in rows:
+            label_ego(ax, scene.xy[e, f])
+        ax.set_xlabel(f"x ({scene.units})", fontsize=8)
+        ax.set_ylabel(f"y ({scene.units})", fontsize=8)
+        ax.tick_params(labelsize=7)
+        type_legend(ax, types, ego=e >= 0, extra=extra, ncol=2)
         collided = contact is not None and contact[:, : f + 1].any()
-        ax.set_title(f"{scene.meta.get('predictor', '')} seed {scene.meta.get('seed', '')}  t = {scene.times[f]:.1f} s"
-                     f"  speed {scene.speed[e, f]:.1f} m/s" + ("  COLLISION" if collided else ""),
-                     fontsize=8, color="red" if collided else "black")
+        ax.set_title(f"ego on {scene.meta.get('predictor', '')} forecasts, seed {scene.meta.get('seed', '')}, "
+                     f"t = {scene.times[f]:.1f} s, ego speed {scene.speed[e, f]:.1f} m/s"
+                     + ("  COLLISION" if collided else ""), fontsize=8, color="red" if collided else "black")
         fig.tight_layout()
         fig.canvas.draw()
         images.append(np.asarray(fig.canvas.buffer_rgba())[..., :3].copy())
@@ -188,29 +237,53 @@ def animate_episode(scene: Scene, path: Path | str, road: RoadGeometry | None = 
     return path
 
 
+SCORECARD_PANELS = (("composite", "composite score", "score (0-1, higher is better)"),
+                    ("collision_rate", "collision rate", "share of episodes"),
+                    ("at_fault_collision_rate", "at-fault collision rate", "share of episodes"),
+                    ("progress_m", "progress", "distance along the road (m)"),
+                    ("online_ade", "online prediction error", "ADE (m, mean Euclidean)"))
+
+
+def panel_ylim(key: str, hi: np.ndarray) -> tuple[float, float] | None:
+    """The y range of a scorecard panel: shares and the composite on their whole 0-1 scale (a panel of zeros
+    then reads as zero, not as a band around it); others from 0 to 10% above the highest CI end (hi, (N,))."""
+    if key == "composite" or key.endswith("_rate"):
+        return 0.0, 1.0
+    top = float(np.nanmax(hi)) if np.isfinite(hi).any() else 0.0
+    return (0.0, 1.1 * top) if top > 0 else (0.0, 1.0)
+
+
 def plot_scorecard(scores: dict[str, dict], path: Path | str) -> Path:
     """Bars with 95% CIs per ego: composite score, collision rates, progress, online ADE -> PNG.
 
-    scores: ego name -> `simharness.closedloop.aggregate` output.
+    scores: ego name -> `simharness.closedloop.aggregate` output. Each bar is labelled with its mean.
     """
     path = Path(path)
-    panels = (("composite", "composite score"), ("collision_rate", "collision rate"),
-              ("at_fault_collision_rate", "at-fault collision rate"), ("progress_m", "progress (m)"),
-              ("online_ade", "online ADE (m)"))
     names = list(scores)
-    fig, axes = plt.subplots(1, len(panels), figsize=(3.2 * len(panels), 3.0), dpi=110)
-    for ax, (key, label) in zip(axes, panels, strict=True):
+    colors = [plt.get_cmap("tab10")(i % 10) for i in range(len(names))]  # one colour per ego, in every panel
+    fig, axes = plt.subplots(1, len(SCORECARD_PANELS), figsize=(3.2 * len(SCORECARD_PANELS), 3.4), dpi=110)
+    for ax, (key, title, ylabel) in zip(axes, SCORECARD_PANELS, strict=True):
         ci = [scores[n].get(key, {}) for n in names]  # scores.json written before a key existed lack it
         mean = np.array([c.get("mean", np.nan) for c in ci], float)
         lo = np.array([c.get("lo", np.nan) for c in ci], float)
         hi = np.array([c.get("hi", np.nan) for c in ci], float)
         x = np.arange(len(names))
         ok = np.isfinite(mean)
-        ax.bar(x[ok], mean[ok], color="#4c72b0")
+        ax.bar(x[ok], mean[ok], color=[colors[i] for i in np.flatnonzero(ok)])
         ax.errorbar(x[ok], mean[ok], yerr=[mean[ok] - lo[ok], hi[ok] - mean[ok]], fmt="none", ecolor="black",
                     capsize=3)
+        ylim = panel_ylim(key, np.where(np.isfinite(hi), hi, mean))
+        ax.set_ylim(*ylim)
+        for i in x:  # the mean written on each bar; "n/a" where the ego has no such figure (no forecasts)
+            label = f"{mean[i]:.2f}" if ok[i] else "n/a"
+            top = hi[i] if ok[i] and np.isfinite(hi[i]) else (mean[i] if ok[i] else 0.0)
+            ax.text(i, top + 0.02 * ylim[1], label, ha="center", va="bottom", fontsize=7)
         ax.set_xticks(x, names, rotation=30, fontsize=8)
-        ax.set_title(label, fontsize=9)
+        ax.set_xlabel("ego's forecasts", fontsize=8)
+        ax.set_ylabel(ylabel, fontsize=8)
+        ax.set_title(title, fontsize=9)
+        ax.grid(axis="y", alpha=0.3)
+    fig.suptitle("closed loop: mean over episodes, bars 95% bootstrap CI", fontsize=9)
     return _save(fig, path)
 
 
@@ -219,30 +292,36 @@ def plot_online_error_by_type(scores: dict[str, dict], path: Path | str) -> Path
     path = Path(path)
     names = [n for n in scores if scores[n].get("online_by_type")]
     types = [t.label for t in AgentType if any(t.label in scores[n]["online_by_type"] for n in names)]
-    fig, ax = plt.subplots(figsize=(8, 3.2), dpi=110)
+    fig, ax = plt.subplots(figsize=(8, 3.4), dpi=110)
     width = 0.8 / max(len(names), 1)
     for i, n in enumerate(names):
         vals = [scores[n]["online_by_type"].get(t, {}).get("ade", {}).get("mean", np.nan) for t in types]
         ax.bar(np.arange(len(types)) + i * width, vals, width, label=n)
     ax.set_xticks(np.arange(len(types)) + 0.4 - width / 2, types, fontsize=8)
-    ax.set_ylabel("online ADE (m)")
-    ax.legend(fontsize=8)
+    ax.set_xlabel("type of the agent forecast")
+    ax.set_ylabel("online ADE (m, mean Euclidean)")
+    ax.set_title("closed loop: each forecast against what the agents then did", fontsize=9)
+    ax.grid(axis="y", alpha=0.3)
+    ax.legend(title="ego's forecasts", fontsize=8, title_fontsize=8)
     return _save(fig, path)
 
 
-# ---------------------------------------------------------------------- open-loop prediction figures (H4)
+# ---------------------------------------------------------------------- open-loop prediction figures
 def plot_rmse_curve(curves: dict[str, list[float]], path: Path | str, units: str = "m",
                     title: str = "RMSE per horizon second") -> Path:
     """The paper's Figure 5: RMSE at t = 1..S s per method. curves: name -> (S,) values."""
     path = Path(path)
     fig, ax = plt.subplots(figsize=(5.5, 4), dpi=120)
     for name, vals in curves.items():
-        ax.plot(np.arange(1, len(vals) + 1), vals, marker="o", label=name)
+        ref = name.lower().startswith(("const-vel", "constant velocity"))  # the reference, dashed
+        ax.plot(np.arange(1, len(vals) + 1), vals, marker="s" if ref else "o", ls="--" if ref else "-", label=name)
     ax.set_xlabel("prediction horizon (s)")
     ax.set_ylabel(f"RMSE ({units})")
+    ax.set_xticks(np.arange(1, max((len(v) for v in curves.values()), default=1) + 1))
+    ax.set_ylim(bottom=0)
     ax.set_title(title)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
+    ax.legend(title="predictor", fontsize=8, title_fontsize=8)
     return _save(fig, path)
 
 
@@ -294,8 +373,10 @@ def plot_forecasts(scene: Scene, now: int, rows: np.ndarray, history: np.ndarray
         ax.set_ylabel(f"y ({scene.units})")
         kind = AgentType(int(scene.agent_type[rows[m]])).label
         ax.set_title(f"{kind} {scene.agent_id[rows[m]]}", fontsize=9)
-        if m == 0:
-            ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7)
+        if m == 0:  # the lines, then the agent types present
+            lines = ax.get_legend_handles_labels()[0]
+            target = Patch(facecolor="white", edgecolor="red", lw=1.2, label="the target")
+            type_legend(ax, scene.agent_type[valid], extra=[*lines, target])
     axes[-1, 0].set_xlabel(f"x ({scene.units})")
     fig.suptitle(title or f"t = {scene.times[now]:.1f} s: history (black), truth (green), "
                           "prediction (red, 1-sigma ellipses)", fontsize=10)
@@ -337,7 +418,7 @@ def plot_sweep(points: list[dict], axis: str, path: Path | str, title: str = "",
     return _save(fig, path)
 
 
-# ---------------------------------------------------------------------- benchmark figures (H7)
+# ---------------------------------------------------------------------- benchmark figures
 def plot_method_bars(rows: dict[str, tuple[float, float, float]], path: Path | str, units: str = "m") -> Path:
     """Per method: ADE-RMSE and FDE-RMSE bars (left) and training wall time (right).
 

@@ -36,6 +36,8 @@ else:  # pragma: no cover
     import tomli as tomllib
 
 SCENARIO_DIR = Path(__file__).resolve().parent.parent / "scenarios"
+MAX_SEED = 2**31 - 1  # simulators take 32-bit signed seeds
+MAX_SCENARIO_BYTES = 1 << 20  # a scenario file is a few hundred bytes; more is not one
 
 
 def _f(default: Any, doc: str, lo: float | None = None, hi: float | None = None, **kw: Any) -> Any:
@@ -90,9 +92,10 @@ class EgoSpec:
         "reactive", "background agents towards the ego: reactive, cut_in (no lateral yield), ignore")
 
 
-EVENT_KINDS = ("brake", "cut_in", "step_out", "pull_out", "merge")
+EVENT_KINDS = ("brake", "cut_in", "step_out", "pull_out", "merge", "turn_across")
 EVENT_ACTORS = {"brake": "truck", "cut_in": "motorcycle", "step_out": "pedestrian", "pull_out": "bus",
-                "merge": "rickshaw"}  # the actor each kind places when `actor` is left empty
+                "merge": "rickshaw", "turn_across": "car"}  # the actor each kind places when `actor` is left empty
+SUMO_ONLY_EVENTS = ("turn_across",)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -103,11 +106,12 @@ class EventSpec:
     does is a function of time alone and an oracle that branches the simulation sees it exactly.
     """
 
-    kind: Literal["brake", "cut_in", "step_out", "pull_out", "merge"] = _f(
+    kind: Literal["brake", "cut_in", "step_out", "pull_out", "merge", "turn_across"] = _f(
         "brake", "brake: a lead brakes hard; cut_in: an agent beside moves into the ego's band and brakes; "
         "step_out: a pedestrian steps out from in front of a stopped bus; pull_out: a stopped bus pulls out "
-        "into the ego's band; merge: a slow agent joins from the edge into the ego's band")
-    actor: str = _f("", "AgentType of the actor; empty: truck, motorcycle, pedestrian, bus, rickshaw by kind")
+        "into the ego's band; merge: a slow agent joins from the edge into the ego's band; turn_across (sumo "
+        "backend): an oncoming agent turns across the ego's path on a quarter circle")
+    actor: str = _f("", "AgentType of the actor; empty: truck, motorcycle, pedestrian, bus, rickshaw, car by kind")
     at: float = _f(2.0, "seconds after warm-up at which the actor is placed (skipped if the ego is absent)",
                    0.0, 3600.0)
     ahead: float = _f(10.0, "m from the ego's front to the actor's rear at placement (negative: beside/behind)",
@@ -124,7 +128,20 @@ class EventSpec:
     lateral_speed: float = _f(1.5, "m/s of sideways motion towards the target (cut_in, step_out, pull_out, "
                               "merge)", 0.0, 6.0)
     target: float = _f(0.0, "m, + left: where the actor moves, from the ego's centre line at the manoeuvre "
-                       "start (step_out: ignored, the pedestrian crosses the whole carriageway)", -20.0, 20.0)
+                       "start (step_out: ignored, the pedestrian crosses the whole carriageway; turn_across: where "
+                       "its quarter-circle turn ends)", -20.0, 20.0)
+
+
+@dataclasses.dataclass(frozen=True)
+class ReplaySpec:
+    """How a recorded data set is replayed (`backend = "replay"`; see `simharness.sim.replay`)."""
+
+    mode: Literal["log", "reactive"] = _f(
+        "reactive", "log: everyone else replays the recording exactly; reactive: they follow their recorded paths "
+        "with an IDM speed control that keeps a gap to the ego and to each other")
+    edge_margin: float = _f(10.0, "m of recorded traffic the ego's episode keeps from the recording's edges, "
+                            "behind its start and ahead of its end", 0.0, 1000.0)
+    pixel_scale: float = _f(0.0, "metres per pixel for recordings in pixels (TRAF); 0: refuse them", 0.0, 100.0)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -133,7 +150,8 @@ class ScenarioSpec:
 
     name: str = _f("", "scenario name (defaults to the file stem)")
     description: str = _f("", "one line for people")
-    backend: Literal["sumo", "highway"] = _f("sumo", "simulator backend")
+    backend: Literal["sumo", "highway", "replay"] = _f("sumo", "simulator backend (replay: a recorded data set)")
+    data: str = _f("", "data set folder replayed (backend = replay), relative to this file")
     seed: int = _f(0, "base seed; a job's seed is added to it", 0, 2**31 - 1)
     duration: float = _f(60.0, "recorded seconds per scene (after warm-up)", 0.1, 86400.0)
     warmup: float = _f(60.0, "unrecorded seconds to fill the road first", 0.0, 3600.0)
@@ -147,8 +165,9 @@ class ScenarioSpec:
     behaviour: BehaviourSpec = _f(None, "driver behaviour", factory=BehaviourSpec)
     sublane: SublaneSpec = _f(None, "lateral (lane-less) movement", factory=SublaneSpec)
     ego: EgoSpec = _f(None, "the harness-driven ego agent", factory=EgoSpec)
-    events: tuple[EventSpec, ...] = _f(None, "scripted events, [[events]] tables (highway backend)",
+    events: tuple[EventSpec, ...] = _f(None, "scripted events, [[events]] tables",
                                        factory=tuple)
+    replay: ReplaySpec = _f(None, "replay of a recorded data set (backend = replay)", factory=ReplaySpec)
     path: str = dataclasses.field(default="", metadata={"internal": True})
 
     @property
@@ -164,6 +183,16 @@ class ScenarioSpec:
     def num_frames(self) -> int:
         return int(round(self.duration * self.record_hz))
 
+    def sim_seed(self, seed: int) -> int:
+        """The seed the simulator gets for job seed `seed`: the scenario's `seed` plus it; UserError (one line)
+        if the sum leaves the simulators' 32-bit range."""
+        total = int(self.seed) + int(seed)
+        if not 0 <= total <= MAX_SEED:
+            raise UserError(f"{self.path or self.name}: key 'seed' = {self.seed} plus job seed {seed} is {total}, "
+                            f"outside the simulators' seed range 0..{MAX_SEED}; lower the scenario's seed or the "
+                            "--seeds")
+        return total
+
     def flows(self) -> dict[AgentType, float]:
         """Vehicles per hour by type, demand_scale applied."""
         return {AgentType.parse(k): v * self.demand_scale for k, v in self.demand.items()}
@@ -173,6 +202,9 @@ class ScenarioSpec:
         d.pop("path")
         if not d["events"]:  # scenarios without events keep the config hash they had before events existed
             d.pop("events")
+        if self.backend != "replay":  # simulated scenarios keep their config hash too
+            d.pop("data")
+            d.pop("replay")
         return d
 
     def config_hash(self) -> str:
@@ -208,14 +240,23 @@ def resolve_scenario_path(name_or_path: str | Path) -> Path:
 def load_scenario(name_or_path: str | Path) -> ScenarioSpec:
     """Read and validate a scenario file; UserError (one line) on any mistake."""
     path = resolve_scenario_path(name_or_path)
+    if path.is_dir() and ((path / "_manifest.json").is_file() or (path / "manifest.json").is_file()):
+        from simharness.sim.replay.scenario import replay_scenario
+
+        return replay_scenario(path)
     if not path.is_file():
         shipped = ", ".join(sorted(p.relative_to(SCENARIO_DIR).with_suffix("").as_posix()
                                    for p in SCENARIO_DIR.glob("**/*.toml")))
         raise UserError(f"{path}: scenario file not found (shipped scenarios: {shipped})")
+    size = path.stat().st_size
+    if size > MAX_SCENARIO_BYTES:
+        raise UserError(f"{path}: {size:,} bytes; a scenario file is at most {MAX_SCENARIO_BYTES:,}")
     try:
         data = tomllib.loads(path.read_text(encoding="utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
         raise UserError(f"{path}: not valid TOML: {e}") from None
+    except RecursionError:  # arrays or tables nested thousands deep: no scenario key nests more than 3
+        raise UserError(f"{path}: not valid TOML for a scenario: nested too deeply") from None
     data.setdefault("name", path.stem)
     return parse_scenario(data, str(path))
 
@@ -240,11 +281,22 @@ def parse_scenario(data: dict[str, Any], where: str) -> ScenarioSpec:
         except UserError:
             raise UserError(f"{where}: key 'events[{i}].actor': unknown agent type {ev.actor!r}; "
                             f"expected one of {', '.join(LABELS)}") from None
+        if ev.kind in SUMO_ONLY_EVENTS and spec.backend != "sumo":
+            raise UserError(f"{where}: key 'events[{i}].kind': {ev.kind!r} runs on the sumo backend only; "
+                            f"expected one of {', '.join(k for k in EVENT_KINDS if k not in SUMO_ONLY_EVENTS)}")
     if spec.events and not spec.ego.enabled:
         raise UserError(f"{where}: key 'events': scripted events are placed relative to the ego; "
                         "expected ego.enabled = true")
-    if not spec.flows() and spec.pedestrians.crossing_rate + spec.pedestrians.walking_rate == 0:
-        raise UserError(f"{where}: key 'demand': no agents at all; expected at least one positive flow")
+    if spec.backend == "replay":
+        if not spec.data:
+            raise UserError(f"{where}: key 'data': backend = \"replay\" replays a data set folder; expected its path")
+        if spec.events:
+            raise UserError(f"{where}: key 'events': scripted events need a simulated backend, not replay")
+        return spec
+    people = (spec.pedestrians.crossing_rate + spec.pedestrians.walking_rate) * spec.demand_scale
+    if not any(v > 0 for v in spec.flows().values()) and people == 0:
+        raise UserError(f"{where}: key 'demand': no agents at all (every flow is 0 after demand_scale = "
+                        f"{spec.demand_scale:g}); expected at least one positive flow")
     return spec
 
 

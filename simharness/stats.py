@@ -65,9 +65,11 @@ def road_length_m(road: RoadGeometry | None, spec: dict[str, Any] | None) -> flo
     From the scenario spec when the data set was generated (arterial length; four arms of an
     intersection), else from the drivable polygons (each taken as a rectangle: sum of long sides).
     """
-    if spec and "road" in spec:
+    length = spec.get("road", {}).get("length") if isinstance(spec, dict) and isinstance(spec.get("road"), dict) \
+        else None
+    if isinstance(length, (int, float)) and not isinstance(length, bool) and np.isfinite(length) and length > 0:
         arms = 4 if spec["road"].get("layout") == "intersection" else 1
-        return float(spec["road"]["length"]) * arms
+        return float(length) * arms
     if road is None or not road.drivable:
         return None
     total = 0.0
@@ -265,6 +267,10 @@ def write_frame_figure(path: Path, out: Path, scene_index: int = 0, frame: int |
 
 def stats_command(args: Any) -> int:
     """CLI: `simharness stats DIR [--json] [--figure PATH]`."""
+    if args.figure is not None:  # before any work: a bad path costs nothing
+        from simharness.io.folders import prepare_figure
+
+        prepare_figure(args.figure)
     s = dataset_stats(args.data, progress=not args.json)
     print(json.dumps(s, sort_keys=True) if args.json else format_table(s))
     if args.figure is not None:

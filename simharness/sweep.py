@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from simharness.closedloop import REFERENCE_EGOS, EpisodeJob, LoopConfig, bootstrap_ci, prepare_spec, run_episode
+from simharness.closedloop.episode import raise_user_error
 from simharness.errors import SimulatorError, UserError
 from simharness.scenario import ScenarioSpec, load_scenario
 
@@ -103,11 +104,12 @@ def sweep(spec: ScenarioSpec, sets: Sequence[tuple[str, Sequence[str]]], predict
     if not predictors:
         raise UserError("--predictor: expected a name (traphic, const-vel, oracle, none) or a run folder")
     grid = build_grid(spec, sets)
-    for name in predictors:
-        if name not in REFERENCE_EGOS:
-            from simharness.predictors import load_predictor
+    if seeds:  # the seed the simulator gets stays 32-bit, or one line before any work
+        spec.sim_seed(max(seeds))
+    from simharness.plugins import check_predictor
 
-            load_predictor(name)  # a bad name fails now, before any process starts
+    for name in predictors:
+        check_predictor(name, REFERENCE_EGOS)  # a bad name fails now, before any process starts
     pool = make_executor(executor, workers, address)
     points = [{"settings": settings, "predictor": name, "spec": prepare_spec(spec.with_overrides(settings))}
               for settings in grid for name in predictors]
@@ -124,6 +126,7 @@ def sweep(spec: ScenarioSpec, sets: Sequence[tuple[str, Sequence[str]]], predict
             if r.ok:
                 scores[r.job.point].append(r.value)
             else:
+                raise_user_error(r.error)  # bad input (an invalid forecast) is one line, not a failed episode
                 error = r.error + (f" (after {r.attempts} attempts)" if r.attempts > 1 else "")
                 failed[r.job.point][r.job.episode.seed] = error
                 tqdm.write(f"{_label(points[r.job.point])} seed {r.job.episode.seed} failed: {error}", file=sys.stderr)

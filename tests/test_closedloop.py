@@ -81,7 +81,7 @@ def test_episode_is_deterministic_by_seed():
     c = run_episode(EpisodeJob(spec, 4, "const-vel"))
     assert a["scene"].equals(b["scene"])
     assert not a["scene"].equals(c["scene"])
-    timing = ("wall_s", "realtime_factor", "realtime_factor_with_warmup")
+    timing = ("wall_s", "cpu_s", "realtime_factor", "realtime_factor_with_warmup")
     strip = lambda s: {k: v for k, v in s.items() if k not in timing and not k.startswith("time_")}  # noqa: E731
     assert json.dumps(strip(a["scores"]), default=str) == json.dumps(strip(b["scores"]), default=str)
     s = a["scores"]

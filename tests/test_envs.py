@@ -5,6 +5,7 @@ from __future__ import annotations
 import functools
 import subprocess
 import sys
+import warnings
 
 import gymnasium as gym
 import numpy as np
@@ -19,22 +20,37 @@ SUMO = {"duration": 4.0, "warmup": 20.0}
 HW_ID, SUMO_ID = "simharness.envs:simharness/HighwayDense-v0", "simharness.envs:simharness/SumoDense-v0"
 
 
-def test_highway_env_passes_the_checker_and_renders():
+def test_highway_env_passes_both_checkers_and_renders():
+    from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
     env = gym.make("simharness/HighwayDense-v0", config=HW, render_mode="rgb_array")
     check_env(env.unwrapped)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # SB3's checker warns on image-like or unconventional shapes
+        sb3_check_env(env.unwrapped)
     obs, info = env.reset(seed=1)
-    assert env.observation_space.contains(obs)
+    assert env.observation_space.contains(obs) and obs.ndim == 1
+    obs = obs.reshape(17, 5, -1)  # (K + 1, H, F)
     assert obs[0, -1, 0] == 1.0  # the ego is present now
     assert obs[1:, -1, 0].sum() >= 5  # dense: neighbours observed
     img = env.render()
-    assert img.ndim == 3 and img.shape[2] == 3 and img.dtype == np.uint8
+    assert img.shape == (300, 720, 3) and img.dtype == np.uint8
     assert len(np.unique(img.reshape(-1, 3)[::37], axis=0)) > 5  # road and coloured agents, not blank
+    assert (img.reshape(-1, 3) == 0).all(-1).sum() > 50  # the ego's black box (and its label) are drawn
     env.close()
 
 
+def test_human_rendering_without_a_display_is_refused_in_one_line(monkeypatch):
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    with pytest.raises(UserError, match="needs a display") as err:
+        gym.make("simharness/HighwayDense-v0", config=HW, render_mode="human")
+    assert "\n" not in str(err.value)
+
+
 def test_highway_env_reward_terms_truncation_and_step_after_the_end():
-    env = gym.make("simharness/HighwayDense-v0", config={**HW, "reward": {"progress": 1.0, "accel": 0.0,
-                                                                             "jerk": 0.0, "lateral": 0.0}})
+    weights = {"alive": 0.0, "progress": 1.0, "accel": 0.0, "jerk": 0.0, "lateral": 0.0}
+    env = gym.make("simharness/HighwayDense-v0", config={**HW, "target_speed": 1000.0, "reward": weights})
     env.reset(seed=2)
     total, steps = 0.0, 0
     while True:
@@ -43,11 +59,12 @@ def test_highway_env_reward_terms_truncation_and_step_after_the_end():
         steps += 1
         if term or trunc:
             break
-    # Pure progress reward = metres made good; the episode lasts `duration` s at 5 Hz unless it ended.
+    # Progress alone, far below its target speed: metres made good / (target m per step); 20 steps in 4 s.
     if not info["collided"]:
-        assert total == pytest.approx(info["progress_m"], rel=1e-6, abs=1e-6)
+        assert total * 1000.0 * 0.2 == pytest.approx(info["progress_m"], rel=1e-6, abs=1e-6)
         assert trunc and steps == 20
-    assert set(info) == {"t", "speed", "progress_m", "collided", "collisions", "min_ttc", "min_gap"}
+    assert set(info) == {"t", "speed", "progress_m", "collided", "collisions", "at_fault_collisions", "on_road",
+                         "min_ttc", "min_gap"}
     with pytest.raises(RuntimeError, match="call reset"):
         env.step(np.zeros(2, np.float32))
     env.reset(seed=3)
@@ -57,7 +74,7 @@ def test_highway_env_reward_terms_truncation_and_step_after_the_end():
 
 def test_observation_matches_the_frames():
     """Row 0 is the ego at the origin heading +x; neighbours' positions are their world offsets rotated."""
-    env = gym.make("simharness/HighwayDense-v0", config={**HW, "num_agents": 6}).unwrapped
+    env = gym.make("simharness/HighwayDense-v0", config={**HW, "num_agents": 6, "flatten": False}).unwrapped
     obs, _ = env.reset(seed=4)
     for _ in range(3):
         obs, *_ = env.step(np.array([0.3, 0.5], np.float32))
@@ -109,7 +126,8 @@ def test_history_tracks_agents_by_id():
 
 
 def test_forecast_observation_option():
-    env = gym.make("simharness/HighwayDense-v0", config={**HW, "predictor": "const-vel", "num_agents": 8})
+    env = gym.make("simharness/HighwayDense-v0", config={**HW, "predictor": "const-vel", "num_agents": 8,
+                                                         "flatten": False})
     obs, _ = env.reset(seed=0)
     assert set(obs) == {"agents", "forecast"} and env.observation_space.contains(obs)
     assert obs["forecast"].shape == (8, 10, 3)
@@ -129,6 +147,10 @@ def test_forecast_observation_option():
     ({"num_agents": 0}, "key 'num_agents': expected an integer >= 1"),
     ({"warmup": float("-inf")}, "key 'warmup': expected a finite number"),
     ({"overrides": {"demand_scale": float("nan")}}, "key 'overrides.demand_scale'"),
+    ({"action": "meta"}, "key 'action': expected one of"),
+    ({"target_speed": 0.0}, "key 'target_speed': expected > 0"),
+    ({"flatten": 1}, "key 'flatten': expected true or false"),
+    ({"reward": {"collision": -10.0}}, "unknown reward term 'collision'"),
 ])
 def test_bad_config_is_refused_in_one_line(config, message):
     with pytest.raises(UserError, match=message) as err:
@@ -153,6 +175,92 @@ def test_bad_actions_are_refused_or_clipped():
     obs, reward, *_ = env.step(np.array([50.0, -50.0], np.float32))
     assert np.isfinite(obs).all() and np.isfinite(reward)
     env.close()
+
+
+def test_discrete_meta_actions_on_both_envs():
+    from simharness.envs.actions import META_ACTIONS
+    from simharness.sim.base import EgoCommand
+
+    for env_id, cfg in ((HW_ID, HW), (SUMO_ID, SUMO)):
+        env = gym.make(env_id, config={**cfg, "action": "discrete"})
+        check_env(env.unwrapped)
+        u = env.unwrapped
+        assert env.action_space == gym.spaces.Discrete(12) and len(META_ACTIONS) == 12
+        assert META_ACTIONS[10] == "faster, straight" and META_ACTIONS[0] == "brake, nudge left"
+        assert u.command(10).acceleration == pytest.approx(1.5) and u.command(10).lateral_velocity == 0.0
+        assert u.command(7) == EgoCommand(0.0, 0.0)  # hold, straight
+        assert u.command(0).acceleration == pytest.approx(-7.0) and u.command(0).lateral_velocity == pytest.approx(0.75)
+        assert u.command(np.int64(5)).lateral_velocity == pytest.approx(-0.75)
+        env.reset(seed=0)
+        for bad in (12, -1, 2.5):
+            with pytest.raises(ValueError, match="meta-action index"):
+                env.step(bad)
+        _, reward, *_ = env.step(8)
+        assert np.isfinite(reward)
+        env.close()
+
+
+@pytest.mark.parametrize("env_id, cfg", [(HW_ID, {"warmup": 20.0}), (SUMO_ID, {"warmup": 30.0})],
+                         ids=["highway", "sumo"])
+def test_full_braking_earns_more_than_full_throttle(env_id, cfg):
+    """The default reward never pays for crashing: full throttle (which runs into traffic) earns less than
+    standing on the brakes over the same seeded episode."""
+    env = gym.make(env_id, config=cfg)
+    got = {}
+    for name, action in (("brake", [-1.0, 0.0]), ("throttle", [1.0, 0.0])):
+        env.reset(seed=0)
+        total, done = 0.0, False
+        while not done:
+            _, r, term, trunc, info = env.step(np.array(action, np.float32))
+            total, done = total + r, term or trunc
+        got[name] = (total, info)
+    assert got["throttle"][1]["at_fault_collisions"] == 1 and not got["brake"][1]["collided"]
+    assert got["brake"][0] > 0 > got["throttle"][0] and got["brake"][1]["progress_m"] < 10
+    env.close()
+
+
+def test_collision_free_episode_outscores_any_at_fault_crash():
+    """Per-step bounds of the reward: the worst collision-free episode beats the best at-fault crash, at the
+    default weights and at others."""
+    from simharness.envs.config import DEFAULT_CONFIG
+    from simharness.envs.reward import Motion, step_reward
+
+    steps = 100
+    worst = Motion(moved=-1.0, accel=-9.0, jerk=50.0, lateral=3.0)
+    best = Motion(moved=5.0, accel=0.0, jerk=0.0, lateral=0.0)
+    for w in (DEFAULT_CONFIG["reward"], {**DEFAULT_CONFIG["reward"], "alive": 0.0, "jerk": -2.0},
+              {**DEFAULT_CONFIG["reward"], "alive": 1.0, "progress": 3.0, "lateral": -0.5}):
+        floor = min(step_reward(w, worst, 2.78, 1.5, True, None, steps), 0.0)  # off the road a step earns 0
+        top = step_reward(w, best, 2.78, 1.5, True, None, steps)
+        assert top == pytest.approx(w["alive"] + w["progress"])
+        assert step_reward(w, best, 2.78, 1.5, False, None, steps) == 0.0  # off the road: nothing
+        crash = (steps - 1) * top + step_reward(w, best, 2.78, 1.5, True, "at_fault", steps)
+        assert crash < steps * floor
+        hit = step_reward(w, best, 2.78, 1.5, True, "hit", steps)
+        assert step_reward(w, best, 2.78, 1.5, True, "at_fault", steps) < hit < 0
+
+
+def _frames(ego_xy, ego_v, other_xy, other_v, n=9, dt=0.2):
+    """n frames of an ego and one other car driving along +x at constant speeds from the given positions."""
+    from simharness.sim.base import Frame
+
+    out = []
+    for i in range(n):
+        t = i * dt
+        xy = np.array([[ego_xy[0] + ego_v * t, ego_xy[1]], [other_xy[0] + other_v * t, other_xy[1]]], np.float32)
+        out.append(Frame(t=t, agent_id=np.array(["ego", "car"]), agent_type=np.zeros(2, np.int8), xy=xy,
+                         heading=np.zeros(2, np.float32), speed=np.array([ego_v, other_v], np.float32),
+                         length=np.full(2, 4.5, np.float32), width=np.full(2, 1.8, np.float32), ego=0))
+    return out
+
+
+def test_fault_is_judged_as_the_scorecard_judges_it():
+    from simharness.envs.reward import ego_fault
+
+    # The ego at 12 m/s runs into a car at 2 m/s ahead: contact begins at the last frame, the ego's fault.
+    assert ego_fault(_frames((0.0, 0.0), 12.0, (20.0, 0.0), 2.0), 0.2)
+    # A car at 14 m/s runs into the back of the ego cruising at 6 m/s: the ego was hit.
+    assert not ego_fault(_frames((16.5, 0.0), 6.0, (0.0, 0.0), 14.0), 0.2)
 
 
 def _rollout(env: gym.Env, seed: int, steps: int = 6) -> tuple[np.ndarray, list[float]]:
@@ -212,10 +320,10 @@ def test_several_sumo_envs_in_one_process():
     second = gym.make("simharness/SumoDense-v0", config=SUMO, render_mode="rgb_array")
     (oa, ra), (ob, rb) = _rollout(first, 3), _rollout(second, 3)
     assert np.array_equal(oa, ob) and ra == rb and len(ra) >= 3
-    assert oa[-1, 1:, -1, 0].sum() >= 5  # dense: neighbours observed
+    assert oa[-1].reshape(17, 5, -1)[1:, -1, 0].sum() >= 5  # dense: neighbours observed
     check_env(second.unwrapped)
     img = second.render()
-    assert img.ndim == 3 and len(np.unique(img.reshape(-1, 3)[::37], axis=0)) > 5
+    assert img.shape == (300, 720, 3) and len(np.unique(img.reshape(-1, 3)[::37], axis=0)) > 5  # as highway's
     other, _ = _rollout(first, 4, steps=1)
     assert not np.array_equal(other[0], oa[0])
     # Warm resets in SUMO too: the ego enters the running traffic again, identically for both.

@@ -110,3 +110,30 @@ def test_registry_names_and_run_folders(tmp_path):
             load_predictor(bad)
     with pytest.raises(UserError, match="config.json"):
         load_predictor(tmp_path)  # a folder that is not a run
+
+
+def test_evaluate_scores_the_test_scenes_a_run_recorded(tmp_path, capsys):
+    """`evaluate --model RUN` without --test-scenes scores the scenes the run held out (config.json), also when it
+    was trained with --test-scenes; on another data set, the hash split."""
+    from _predictor_data import write_flow_dataset
+
+    from predictor.split import split_scenes
+    from predictor.train import train
+    from simharness.cli import main
+
+    data = write_flow_dataset(tmp_path / "flow", scenes=4)
+    ids = [f"scene-{i:06d}" for i in range(4)]
+    named = next(s for s in ids if s not in split_scenes(ids)["test"])  # not the hash split's test scene
+    train(data, "rnn-ed", tmp_path / "run", epochs=1, warmup_epochs=1, batch_size=64, max_samples=64, threads=1,
+          progress=False, test_scenes=[named], cache_dir=tmp_path / "cache")
+    capsys.readouterr()
+    assert main(["evaluate", "--data", str(data), "--model", str(tmp_path / "run"), "--out", str(tmp_path / "ev")]) == 0
+    out = capsys.readouterr().out
+    assert json.loads((tmp_path / "ev" / "metrics.json").read_text())["scene_ids"] == [named]
+    assert "scoring split 'test': 1 of 4 scenes (the ones the model's training held out, as its run config" in out
+    other = write_flow_dataset(tmp_path / "other", scenes=5)  # another content hash: the hash split
+    run = str(tmp_path / "run")
+    assert main(["evaluate", "--data", str(other), "--model", run, "--out", str(tmp_path / "ev2")]) == 0
+    assert "by a hash of the scene ids" in capsys.readouterr().out
+    assert json.loads((tmp_path / "ev2" / "metrics.json").read_text())["scene_ids"] == split_scenes(
+        [f"scene-{i:06d}" for i in range(5)])["test"]

@@ -63,7 +63,7 @@ def test_stress_suite_loads():
     assert len(names) >= 5
     for name in names:
         spec = load_scenario(f"stress/{name}")
-        assert spec.events and spec.ego.enabled and spec.backend == "highway"
+        assert spec.events and spec.ego.enabled and spec.backend in ("highway", "sumo")
 
 
 def _run(spec, seed: int = 3, frames: int | None = None):

@@ -125,8 +125,8 @@ def _episode_scores(job):  # noqa: ANN001, ANN202 - an EpisodeJob -> its scores 
     from simharness.closedloop import run_episode
 
     scores = run_episode(job)["scores"]
-    return {k: v for k, v in scores.items() if k not in ("wall_s", "realtime_factor", "realtime_factor_with_warmup")
-            and not k.startswith("time_")}
+    timing = ("wall_s", "cpu_s", "realtime_factor", "realtime_factor_with_warmup")
+    return {k: v for k, v in scores.items() if k not in timing and not k.startswith("time_")}
 
 
 def _dies_on_seed_1(job):  # noqa: ANN001, ANN202 - the sensitivity job function, killed mid-episode on seed 1

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import pyarrow as pa
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -228,3 +229,137 @@ def test_tracknpred_npy_importer_never_tracebacks(rows: int, width: int, data: s
         return path
 
     import_and_check("tracknpred", write)
+
+
+# ---------------------------------------------------------------------- run configs, shard metadata, manifests
+# JSON values as a hostile user writes them into a file the project reads back
+JSON_VALUE = st.one_of(st.none(), st.booleans(), st.integers(-2**70, 2**70), st.floats(), st.text(max_size=6),
+                       st.lists(st.integers(-3, 10**12), max_size=3), st.dictionaries(st.text(max_size=3),
+                                                                                     st.integers(), max_size=2),
+                       st.sampled_from([0, -1, 1e9, 1e11, 2**31, "abc", [], {}, [1, 2]]))
+
+
+def paths_of(obj: object, prefix: tuple = (), depth: int = 3) -> list[tuple]:
+    """Every key path into nested dicts and lists, down to `depth`."""
+    items = obj.items() if isinstance(obj, dict) else enumerate(obj) if isinstance(obj, list) else []
+    out = []
+    for k, v in items:
+        out.append((*prefix, k))
+        if depth > 1:
+            out += paths_of(v, (*prefix, k), depth - 1)
+    return out
+
+
+def mutate(obj: object, data: st.DataObject, times: int = 2) -> object:
+    """`obj` (a JSON document) with up to `times` values replaced by hostile ones or deleted."""
+    import copy
+
+    obj = copy.deepcopy(obj)
+    for _ in range(data.draw(st.integers(1, times))):
+        paths = paths_of(obj)
+        if not paths:
+            return data.draw(JSON_VALUE)
+        *parent, key = data.draw(st.sampled_from(paths))
+        node = obj
+        for k in parent:
+            node = node[k]
+        if data.draw(st.booleans()) and isinstance(node, dict):
+            del node[key]
+        else:
+            node[key] = data.draw(JSON_VALUE)
+    return obj
+
+
+SHIPPED = Path(__file__).resolve().parent.parent / "predictor" / "weights"
+
+
+@FUZZ
+@given(data=st.data())
+def test_run_config_reader_never_tracebacks(data: st.DataObject) -> None:
+    import json
+
+    from predictor.checkpoint import read_config
+    from predictor.features import WindowConfig
+    from predictor.models import config_class
+    from simharness.errors import UserError
+
+    name = data.draw(st.sampled_from(["traphic", "cs-lstm", "social-gan"]))
+    cfg = mutate(json.loads((SHIPPED / f"{name}.json").read_text()), data)
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "config.json"
+        path.write_text(json.dumps(cfg))
+        try:
+            good = read_config(path)
+        except UserError as e:
+            assert str(e).startswith(str(path)) and "\n" not in str(e)
+            return
+    # accepted: the window and model config build (bounded sizes) without any other error
+    window = WindowConfig.from_dict(good["window"])
+    with contextlib.suppress(UserError):
+        window.frames(0.1)
+    config_class(good["model"])(**{k: tuple(v) if isinstance(v, list) else v for k, v in good["model_config"].items()})
+
+
+def _write_with_info(folder: Path, info: object, x_nan: bool = False) -> Path:
+    """A shard whose `simharness` metadata is `info` (JSON-encoded as is), rows of a real scene."""
+    import json
+
+    import pyarrow.parquet as pq
+    from conftest import make_scene
+
+    from simharness.io.parquet import META_KEY, scene_table
+
+    table = scene_table(make_scene(), "scene-000000")
+    if x_nan:
+        x = table.column("x").to_numpy().copy()
+        x[1] = np.nan
+        table = table.set_column(table.schema.get_field_index("x"), "x", pa.array(x))
+    table = table.replace_schema_metadata({META_KEY: json.dumps(info).encode()})
+    path = folder / "scene-000000.parquet"
+    pq.write_table(table, path)
+    return path
+
+
+def _shard_info_of_a_real_scene() -> dict:
+    import json
+
+    from conftest import make_scene
+
+    from simharness.io.parquet import META_KEY, scene_table
+
+    return json.loads(scene_table(make_scene(), "scene-000000").schema.metadata[META_KEY])
+
+
+@FUZZ
+@given(data=st.data())
+def test_shard_metadata_reader_never_tracebacks(data: st.DataObject) -> None:
+    from simharness.errors import UserError
+    from simharness.io.parquet import describe_shard, read_scene, shard_damage
+
+    info = mutate(_shard_info_of_a_real_scene(), data)
+    with tempfile.TemporaryDirectory() as tmp:
+        path = _write_with_info(Path(tmp), info, x_nan=data.draw(st.booleans()))
+        for read in (read_scene, describe_shard):
+            with contextlib.suppress(UserError):
+                read(path)
+        damage = shard_damage(path)
+        assert damage is None or "\n" not in damage
+
+
+@FUZZ
+@given(data=st.data())
+def test_manifest_reader_never_tracebacks(data: st.DataObject) -> None:
+    import json
+
+    from conftest import make_scene
+
+    from simharness.io.parquet import MANIFEST, write_dataset
+
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = write_dataset([make_scene(seed=0), make_scene(seed=1)], Path(tmp) / "ds", {"source": "fuzz"})
+        manifest = json.loads((folder / MANIFEST).read_text())
+        manifest["info"]["road"] = {"drivable": [[[0.0, -5.0], [100.0, -5.0], [100.0, 5.0]]], "markings": []}
+        manifest = mutate(manifest, data, times=3)
+        (folder / MANIFEST).write_text(json.dumps(manifest))
+        code, err = run_cli(["stats", str(folder), "--json"])
+        check_outcome(code, err, None)

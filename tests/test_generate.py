@@ -43,6 +43,14 @@ def test_raising_and_dying_jobs_fail_alone() -> None:
     assert len(died) == 1 and died[0].error == "worker process died (exit code 7)"
 
 
+def test_a_retried_job_is_logged(capsys) -> None:
+    died = list(LocalExecutor(1, max_retries=1).map_unordered(os._exit, [7]))
+    assert died[0].attempts == 2 and not died[0].ok
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["simharness: job 7: attempt 1 of 2 ended (worker process died (exit code 7)); retrying in a "
+                   "fresh process"]
+
+
 def test_each_job_gets_a_fresh_process() -> None:  # when asked: workers are reused by default (test_executors)
     pids = [r.value for r in LocalExecutor(2, jobs_per_worker=1).map_unordered(_pid, range(3))]
     assert len(set(pids)) == 3 and os.getpid() not in pids

@@ -1,4 +1,4 @@
-"""Data sets that never lie (issue 13): each case a hostile user tried, kept fixed.
+"""Data sets that never lie : each case a hostile user tried, kept fixed.
 
 Shards checked against the manifest (size, sha256) on read and on resume; caches keyed on shard content;
 NaN and infinities refused; concurrent writers safe; one output-folder rule; every error one line, exit 2.
@@ -27,7 +27,7 @@ from predictor.checkpoint import load_checkpoint, save_checkpoint
 from predictor.train import open_data
 from simharness.cli import MAX_SEEDS, main, parse_seeds
 from simharness.errors import UserError
-from simharness.io.folders import writer_lock
+from simharness.io.folders import prepare_output, writer_lock
 from simharness.io.parquet import (
     LEGACY_MANIFEST,
     MANIFEST,
@@ -399,3 +399,287 @@ def test_manifest_never_holds_nan(tmp_path: Path) -> None:
         write_dataset([flow_scene(0)], tmp_path / "ds", {"source": "test", "bad": float("nan")})
     assert not (tmp_path / "ds").exists()
     json.loads((write_dataset([flow_scene(0)], tmp_path / "ok", {"x": 1.0}) / MANIFEST).read_text())
+
+
+# ---------------------------------------------------------------------- a lying manifest never deletes intact data
+def _edit_manifest(folder: Path, index: int, **fields: object) -> None:
+    manifest = json.loads((folder / MANIFEST).read_text())
+    manifest["scenes"][index].update(fields)
+    (folder / MANIFEST).write_text(json.dumps(manifest))
+
+
+@pytest.mark.parametrize("lie", ["sha256", "bytes"])
+def test_a_wrong_manifest_entry_is_repaired_and_the_intact_shard_kept(tiny, tmp_path: Path, capsys, lie: str) -> None:
+    scenario, ref = tiny
+    out = tmp_path / "ds"
+    shutil.copytree(ref, out)
+    entry = read_manifest(out)["scenes"][1]
+    wrong = ("0" if entry["sha256"][0] != "0" else "1") + entry["sha256"][1:] if lie == "sha256" else \
+        entry["bytes"] + 7
+    _edit_manifest(out, 1, **{lie: wrong})
+    with pytest.raises(UserError, match="scene-000001.parquet: .*yet the shard reads intact.*entry is wrong"):
+        Dataset(out)
+    capsys.readouterr()
+    assert main(["generate", str(scenario), "--seeds", "0", "--out", str(out), "--workers", "1"]) == 0
+    err = capsys.readouterr().err
+    assert "scene-000001.parquet" in err and "entry is repaired" in err and "removed" not in err
+    assert data_files(out) == data_files(ref)  # the shard byte-identical, the manifest as a clean run's
+
+
+def test_an_intact_shard_under_another_seeds_name_is_damaged(tiny, tmp_path: Path, capsys) -> None:
+    scenario, ref = tiny
+    out = tmp_path / "ds"
+    shutil.copytree(ref, out)
+    shutil.copy(out / "scene-000000.parquet", out / "scene-000001.parquet")  # self-consistent, wrong name
+    assert main(["generate", str(scenario), "--seeds", "0-1", "--out", str(out), "--workers", "1"]) == 0
+    assert "scene-000001.parquet: damaged (holds scene 'scene-000000'" in capsys.readouterr().err
+    assert data_files(out) == data_files(ref)
+
+
+# ---------------------------------------------------------------------- nothing is written inside a data set
+def test_no_command_writes_inside_a_data_set_folder(tiny, tmp_path: Path, capsys) -> None:
+    scenario, _ = tiny
+    data = write_dataset([flow_scene(0), flow_scene(1)], tmp_path / "data", {"source": "test"})
+    (tmp_path / "link").symlink_to(data)
+    before = data_files(data)
+    inside = [data / "sub", data / "a" / "b", tmp_path / "link" / "sub"]
+    commands = {
+        "evaluate": lambda o: ["evaluate", "--data", str(data), "--model", "const-vel", "--split", "all", "--out", o],
+        "generate": lambda o: ["generate", str(scenario), "--out", o, "--workers", "1"],
+        "export": lambda o: ["export", "tracknpred", str(data), "--out", o],
+        "stats": lambda o: ["stats", str(data), "--figure", o + "/x.png"],
+        "train": lambda o: ["train", "--data", str(data), "--model", "traphic-b", "--out", o],
+        "closedloop": lambda o: ["closedloop", str(scenario), "--predictor", "const-vel", "--out", o],
+        "sweep": lambda o: ["sweep", str(scenario), "--set", "demand_scale=1", "--out", o],
+        "sensitivity": lambda o: ["sensitivity", str(scenario), "--perturb", "noise=0", "--out", o],
+        "benchmark": lambda o: ["benchmark", "--data", str(data), "--out", o],
+        "import": lambda o: ["import", "eth-ucy", str(DATA / "eth_ucy"), "--out", o],
+    }
+    for name, argv in commands.items():
+        for out in inside:
+            assert main(argv(str(out))) == 2, (name, out)
+            one_error_line(capsys, "lies inside the data set folder")
+    assert data_files(data) == before and sorted(p.name for p in data.iterdir()) == sorted(before)
+    assert len(pd.read_parquet(data)) == read_manifest(data)["rows"]
+
+
+# ---------------------------------------------------------------------- crafted files: one line, exit 2
+def _crafted_shard(path: Path, info: object = None, x_nan: bool = False, raw: bytes | None = None) -> None:
+    """Rewrite the shard at `path` with its `simharness` metadata replaced (by `info` as JSON, or `raw`)."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    table = pq.read_table(path)
+    if x_nan:
+        x = table.column("x").to_numpy().copy()
+        x[0] = float("nan")
+        table = table.set_column(table.schema.get_field_index("x"), "x", pa.array(x))
+    meta = raw if raw is not None else json.dumps(info).encode() if info is not None else \
+        table.schema.metadata[b"simharness"]
+    pq.write_table(table.replace_schema_metadata({b"simharness": meta}), path)
+
+
+def _info(path: Path) -> dict:
+    import pyarrow.parquet as pq
+
+    return json.loads(pq.read_schema(path).metadata[b"simharness"])
+
+
+CRAFTED = {
+    "not json": ({"raw": b"{not json"}, "not valid JSON"),
+    "a list": ({"info": [1, 2]}, "expected a JSON object"),
+    "no agents": ({"drop": "agents"}, "field 'agents'"),
+    "1e11 frames": ({"set": ("num_frames", 10**11)}, "field 'num_frames'"),
+    "NaN dt": ({"set": ("dt", float("nan"))}, "field 'dt'"),
+    "NaN in x": ({"x_nan": True}, "column 'x' holds NaN"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(CRAFTED))
+def test_crafted_shard_metadata_is_one_line_and_removed_by_generate(tiny, tmp_path: Path, capsys, case: str) -> None:
+    scenario, ref = tiny
+    out = tmp_path / "ds"
+    shutil.copytree(ref, out)
+    shard = out / "scene-000001.parquet"
+    how, needle = CRAFTED[case]
+    info = _info(shard)
+    if "drop" in how:
+        del info[how["drop"]]
+    if "set" in how:
+        info[how["set"][0]] = how["set"][1]
+    _crafted_shard(shard, info=how.get("info", info), x_nan=how.get("x_nan", False), raw=how.get("raw"))
+    _edit_manifest(out, 1, bytes=shard.stat().st_size, sha256=file_sha256(shard))  # listed as it is now
+    assert main(["stats", str(out)]) == 2
+    one_error_line(capsys, "scene-000001.parquet", needle)
+    manifest = read_manifest(out)  # unlisted, as a killed run leaves it: judged by its own bytes alone
+    write_manifest(out, build_manifest(manifest["scenes"][:1], manifest["info"]))
+    assert main(["generate", str(scenario), "--seeds", "0", "--out", str(out), "--workers", "1"]) == 0
+    err = capsys.readouterr().err
+    assert "scene-000001.parquet: damaged" in err and needle in err and "rerun with --seeds 1" in err
+    assert not shard.exists() and Dataset(out).scene_ids == ["scene-000000"]
+
+
+RUN_CONFIGS = {
+    "encoder abc": (("model_config", "encoder"), "abc", "model_config.encoder"),
+    "encoder 200000": (("model_config", "encoder"), 200000, "model_config.encoder"),
+    "model_config a list": (("model_config",), [1, 2], "model_config"),
+    "hz 0": (("window", "hz"), 0, "window.hz"),
+    "hz NaN": (("window", "hz"), float("nan"), "window.hz"),
+    "history_s -3": (("window", "history_s"), -3, "window.history_s"),
+    "history_s 1e9": (("window", "history_s"), 1e9, "window.history_s"),
+    "model 7": (("model",), 7, "'model'"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(RUN_CONFIGS))
+def test_crafted_run_config_is_one_line_naming_the_field(tmp_path: Path, capsys, case: str) -> None:
+    keys, value, needle = RUN_CONFIGS[case]
+    run = tmp_path / "run"
+    run.mkdir()
+    shutil.copy(SHIPPED_WEIGHTS / "traphic.pt", run / "model.pt")
+    cfg = json.loads((SHIPPED_WEIGHTS / "traphic.json").read_text())
+    node = cfg
+    for k in keys[:-1]:
+        node = node[k]
+    node[keys[-1]] = value
+    (run / "config.json").write_text(json.dumps(cfg))
+    data = write_dataset([flow_scene(0)], tmp_path / "data", {"source": "test"})
+    assert main(["evaluate", "--data", str(data), "--model", str(run), "--split", "all"]) == 2
+    one_error_line(capsys, "config.json", needle)
+
+
+def test_crafted_scenario_and_npy_are_one_line(tmp_path: Path, capsys) -> None:
+    import numpy as np
+
+    deep = tmp_path / "deep.toml"
+    deep.write_text("x = " + "[" * 100_000 + "]" * 100_000 + "\n")
+    assert main(["scenario", str(deep)]) == 2
+    one_error_line(capsys, "deep.toml", "nested too deeply")
+    npy = tmp_path / "huge.npy"
+    with open(npy, "wb") as f:  # a header declaring 34 TiB over 80 bytes of data
+        np.lib.format.write_array_header_1_0(f, {"descr": "<f8", "fortran_order": False, "shape": (2**40, 5)})
+        f.write(bytes(80))
+    assert main(["import", "tracknpred", str(npy), "--out", str(tmp_path / "out")]) == 2
+    one_error_line(capsys, "huge.npy", "header declares an array of shape")
+    assert not (tmp_path / "out").exists()
+
+
+# ---------------------------------------------------------------------- filesystem errors
+def _read_only_folder(tmp_path: Path) -> Path:
+    """A folder this process cannot write to: mode 0555, or for root (whom modes do not stop) /proc/sys."""
+    import os
+
+    if os.geteuid() == 0:
+        return Path("/proc/sys")
+    folder = tmp_path / "ro"
+    folder.mkdir(mode=0o555)
+    return folder
+
+
+def test_unwritable_outputs_are_one_line_and_exit_2(tiny, tmp_path: Path, capsys) -> None:
+    scenario, data = tiny
+    (tmp_path / "afile").write_text("x")
+    for out in (_read_only_folder(tmp_path) / "out", tmp_path / "afile" / "sub"):
+        for argv in (["generate", str(scenario), "--workers", "1"],
+                     ["evaluate", "--data", str(data), "--model", "const-vel", "--split", "all"],
+                     ["import", "eth-ucy", str(DATA / "eth_ucy")],
+                     ["closedloop", str(scenario), "--predictor", "const-vel"]):
+            assert main([*argv, "--out", str(out)]) == 2, argv
+            one_error_line(capsys, "not writable" if "afile" not in str(out) else "which is a file")
+    (tmp_path / "folder.png").mkdir()
+    for figure, needle in ((tmp_path / "folder.png", "names a folder"), (tmp_path / "afile" / "x.png", "a file"),
+                           (tmp_path / "x.xyz", "suffix '.xyz'")):
+        assert main(["stats", str(data), "--figure", str(figure)]) == 2
+        one_error_line(capsys, needle)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["afile", "folder.png"] + (
+        ["ro"] if (tmp_path / "ro").exists() else [])
+
+
+def test_os_errors_on_a_path_are_one_line(capsys) -> None:
+    import errno
+
+    from simharness.cli import run_guarded
+
+    def job() -> int:
+        raise OSError(errno.EROFS, "Read-only file system", "/data/out")
+
+    assert run_guarded(job) == 2
+    one_error_line(capsys, "/data/out: Read-only file system")
+
+
+# ---------------------------------------------------------------------- bad numbers
+def test_bad_seeds_and_empty_demand_are_one_line(tiny, tmp_path: Path, capsys) -> None:
+    scenario, data = tiny
+    for seed in ("-1", "99999999999999999999", "2147483648"):
+        with pytest.raises(SystemExit) as e:
+            main(["train", "--data", str(data), "--out", str(tmp_path / "t"), "--seed", seed])
+        assert e.value.code == 2 and "expected a seed in 0..2147483647" in capsys.readouterr().err
+    big = tmp_path / "big.toml"
+    big.write_text(TINY.replace('name = "tiny"', 'name = "big"\nseed = 2147483647'))
+    for argv in (["generate", str(big), "--workers", "1"], ["closedloop", str(big), "--predictor", "const-vel"]):
+        assert main([*argv, "--seeds", "2147483647", "--out", str(tmp_path / "o")]) == 2
+        one_error_line(capsys, "big.toml", "4294967294", "seed range 0..2147483647")
+    assert main(["generate", str(big), "--seeds", "0", "--out", str(tmp_path / "o"), "--workers", "1",
+                 "--duration", "0.4"]) == 0  # the sum in range: runs
+    zero = tmp_path / "zero.toml"
+    zero.write_text(TINY.replace("car = 1800", "car = 0").replace("motorcycle = 900", "motorcycle = 0.0"))
+    scaled = tmp_path / "scaled.toml"
+    scaled.write_text(TINY.replace('backend = "sumo"', 'backend = "sumo"\ndemand_scale = 0'))
+    for bad in (zero, scaled):
+        assert main(["generate", str(bad), "--out", str(tmp_path / "z")]) == 2
+        one_error_line(capsys, bad.name, "key 'demand': no agents at all")
+    assert not (tmp_path / "t").exists() and not (tmp_path / "z").exists()
+
+
+# ---------------------------------------------------------------------- symbolic links, leftovers, modes
+@pytest.mark.parametrize("name", ["_runs.jsonl", "_lock", "_manifest.json"])
+def test_a_symlink_in_the_data_set_folder_is_never_followed(tiny, tmp_path: Path, capsys, name: str) -> None:
+    scenario, ref = tiny
+    out = tmp_path / "ds"
+    shutil.copytree(ref, out)
+    target = tmp_path / "outside.txt"
+    target.write_text("keep")
+    if name == "_manifest.json":
+        shutil.move(out / name, target)
+    else:
+        (out / name).unlink()
+    (out / name).symlink_to(target)
+    before = target.read_bytes()
+    assert main(["generate", str(scenario), "--seeds", "0", "--out", str(out), "--workers", "1"]) == 2
+    one_error_line(capsys, name, "symbolic link")
+    assert target.read_bytes() == before
+
+
+def test_leftovers_of_killed_runs_go_and_refusals_leave_nothing(tiny, tmp_path: Path, capsys) -> None:
+    import os
+    import stat
+
+    scenario, _ = tiny
+    out = tmp_path / "imp"
+    dead = tmp_path / ".tmp-imp.999999999.abcd"  # what a kill -9 during `import` leaves (no such pid)
+    dead.mkdir()
+    (dead / "scene.parquet").write_bytes(bytes(1000))
+    live = tmp_path / f".tmp-imp.{os.getpid()}.efgh"  # a writer still running: left alone
+    live.mkdir()
+    assert main(["import", "eth-ucy", str(DATA / "eth_ucy"), "--out", str(out)]) == 0
+    assert not dead.exists() and live.exists()
+    old = os.umask(0o022)
+    try:
+        shutil.rmtree(out)
+        assert main(["import", "eth-ucy", str(DATA / "eth_ucy"), "--out", str(out)]) == 0
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE(out.stat().st_mode) == 0o755
+    assert {stat.S_IMODE(p.stat().st_mode) for p in out.iterdir()} == {0o644}
+    busy = tmp_path / "busy"
+    busy.mkdir()
+    (busy / "mine.txt").write_text("x")
+    capsys.readouterr()
+    assert main(["generate", str(scenario), "--out", str(busy), "--workers", "1"]) == 2
+    one_error_line(capsys, "mine.txt")
+    assert sorted(p.name for p in busy.iterdir()) == ["mine.txt"]  # no _lock
+    # a killed evaluate/train left half-written files inside its --out: the next run into it removes them
+    (busy / ".tmp-metrics.json.999999999.x1y2").write_text("{")
+    (busy / f".tmp-model.pt.{os.getpid()}.w").write_text("live")
+    prepare_output(busy, force=True)
+    assert sorted(p.name for p in busy.iterdir()) == [f".tmp-model.pt.{os.getpid()}.w", "mine.txt"]

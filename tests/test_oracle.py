@@ -2,7 +2,7 @@
 against what then happened in the same episode) zero under `ignore`, small under a reacting background;
 branches replay the original exactly.
 
-Fast: a few short episodes. Slow (`-m slow`): issue 11's 10 seeds x 60 s on both scenarios.
+Fast: a few short episodes. Slow (`-m slow`): the results page's 10 seeds x 60 s on both scenarios.
 """
 
 from __future__ import annotations
@@ -18,9 +18,10 @@ SCENARIOS = ("highway_mixed_dense", "sumo_arterial_dense")
 REACTIONS = ("reactive", "cut_in", "ignore")
 
 
-def _online(scenario: str, reaction: str, seeds: list[int], duration: float) -> tuple[float, float, list[dict]]:
+def _online(scenario: str, reaction: str, seeds: list[int], duration: float,
+            planner: str = "pdm") -> tuple[float, float, list[dict]]:
     spec = prepare_spec(load_scenario(scenario), reaction).with_overrides({"duration": duration})
-    scores = [run_episode(EpisodeJob(spec, s, "oracle", keep_scene=False))["scores"] for s in seeds]
+    scores = [run_episode(EpisodeJob(spec, s, "oracle", keep_scene=False, planner=planner))["scores"] for s in seeds]
     assert all(s["online_samples"] > 100 for s in scores)
     return float(np.mean([s["online_ade"] for s in scores])), float(np.mean([s["online_fde"] for s in scores])), scores
 
@@ -60,17 +61,18 @@ def test_oracle_online_error_under_a_reacting_background(reaction):
 
 
 def test_oracle_serves_one_blend_where_no_forecast_comes_true():
-    # Seed 1 of cut_in cycles in its first seconds: told the truth there, the ego would change it.
-    ade, fde, scores = _online("highway_mixed_dense", "cut_in", [1], 6.0)
+    # Seed 1 of cut_in cycles in its first seconds with the sampling planner: told the truth there, its ego would
+    # change it.
+    ade, fde, scores = _online("highway_mixed_dense", "cut_in", [1], 6.0, planner="sampling")
     s = scores[0]
     assert s["oracle_cycles"] + s["oracle_unconverged"] >= 1 and s["oracle_inexact"] >= 1
     assert s["oracle_mismatches"] == 0  # served the blend, the episode follows the branch
     assert ade < 0.02 and fde < 0.05
 
 
-# Issue 11's figures: online ADE and FDE < 0.05 m under every reaction, exact under `ignore`. Under a reacting
+# The oracle's figures: online ADE and FDE < 0.05 m under every reaction, exact under `ignore`. Under a reacting
 # background the oracle is exact wherever a forecast can come true; where none can (a self-defeating one, see
-# simharness/closedloop/oracles.py) one forecast per such branch is a blend (docs/results.md, issue 11).
+# simharness/closedloop/oracles.py) one forecast per such branch is a blend (docs/results.md).
 @pytest.mark.slow
 @pytest.mark.parametrize("reaction", REACTIONS)
 @pytest.mark.parametrize("scenario", SCENARIOS)

@@ -161,3 +161,33 @@ def test_cli_names_a_corrupt_shard_and_exits_2(tmp_path: Path) -> None:
     proc = subprocess.run([sys.executable, "-m", "simharness", "stats", str(tmp_path)], capture_output=True,
                           text=True)
     assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and "_manifest.json: missing" in proc.stderr
+
+
+def test_columns_carry_units_and_t_is_exact(tmp_path: Path) -> None:
+    from simharness.io.parquet import COLUMN_DOCS
+
+    scene = make_scene(num_frames=40, dt=0.1)
+    write_scene(scene, tmp_path / "s.parquet", "s")
+    schema = pq.read_schema(tmp_path / "s.parquet")
+    for name in BASE_COLUMNS:
+        meta = schema.field(name).metadata
+        assert meta[b"unit"].decode() == COLUMN_DOCS[name][0] and meta[b"description"], name
+    assert schema.field("x").metadata[b"unit"] == b"m" and schema.field("speed").metadata[b"unit"] == b"m/s"
+    t = pq.read_table(tmp_path / "s.parquet").column("t").to_pylist()
+    assert 0.6 in t and all(repr(v) == repr(round(v, 9)) for v in t)  # 0.6, never 0.6000000000000001
+    doc = (Path(__file__).resolve().parent.parent / "docs" / "dataset.md").read_text()
+    assert all(f"`{name}`" in doc for name in (*BASE_COLUMNS, "lateral_offset"))
+
+
+def test_a_shard_shows_damage_by_its_own_bytes(tmp_path: Path) -> None:
+    from simharness.io.parquet import shard_damage
+
+    path = tmp_path / "scene-000000.parquet"
+    write_scene(make_scene(num_agents=8, num_frames=60), path, "scene-000000")
+    assert shard_damage(path) is None
+    data = bytearray(path.read_bytes())
+    data[300:340] = bytes(40)  # a page's bytes zeroed: its checksum fails, whatever a manifest says
+    path.write_bytes(bytes(data))
+    assert shard_damage(path) is not None
+    path.write_bytes(bytes(data[:500]))
+    assert "corrupt or unreadable" in shard_damage(path)

@@ -1,9 +1,11 @@
-"""The sampling planner on hand-built situations: brake for a blocked road, swerve into a gap, use sigma."""
+"""The planners on hand-built situations: brake for a blocked road, swerve into a gap, keep to the road, plan
+around agents the forecast left out, command smoothly (PDM), use sigma (sampling)."""
 
 from __future__ import annotations
 
 import numpy as np
 
+from simharness.pdm_planner import PDMPlanner
 from simharness.planners import BackgroundPlanner, ConstantSpeedPlanner, EgoLimits, Planner, SamplingPlanner
 from simharness.scene import AgentType, Forecast, Scene
 from simharness.sim.base import EgoCommand, RoadGeometry
@@ -164,3 +166,113 @@ def test_pair_terms_are_numpys_full_evaluation_to_the_bit():
         got[live] = (ndtr(a1) - ndtr(b1)) * (ndtr(a2) - ndtr(b2))
         assert np.array_equal(got.reshape(full.shape), full) and 0 < (full > 0).mean() and live.size < full.size
         assert np.array_equal(got2, short2) and 0 < (short2 > 0).mean() < 0.5
+
+
+# ---------------------------------------------------------------------- PDMPlanner (the closed loop's default)
+def _pdm(max_speed: float = 14.0, half_width: float = 5.0) -> PDMPlanner:
+    return PDMPlanner(EgoLimits(max_speed=max_speed), road=_road(half_width))
+
+
+def _drive(planner: PDMPlanner, now: Scene, forecast: Forecast | None, frames: int) -> list[EgoCommand]:
+    """Replan `frames` times on the same scene (the ego stays put): the command sequence the tracking gives."""
+    return [planner.plan(now, forecast) for _ in range(frames)]
+
+
+def test_pdm_brakes_comfortably_for_a_stopped_wall_and_stops_short_of_it():
+    wall = [(30.0, y, 0.0) for y in (-4.0, -2.0, 0.0, 2.0, 4.0)]
+    now = _now(10.0, wall)
+    planner = _pdm()
+    cmd = planner.plan(now, _cv_forecast(now))
+    # The first command moves off the current acceleration (0) by at most one comfortable jerk step.
+    assert -planner.config.comfort_jerk * 0.2 - 1e-9 <= cmd.acceleration < 0
+    assert planner.last_rollout[:, 0].max() + 4.3 / 2 < 30.0 - 4.3 / 2
+
+
+def test_pdm_speeds_up_on_an_empty_road_and_keeps_its_line():
+    now = _now(5.0, [])
+    cmd = _pdm().plan(now, _cv_forecast(now))
+    assert cmd.acceleration > 0 and cmd.lateral_velocity == 0
+
+
+def test_pdm_goes_round_a_stopped_car_rather_than_stopping():
+    now = _now(10.0, [(35.0, 0.0, 0.0), (35.0, -2.2, 0.0)])
+    planner = _pdm()
+    cmd = planner.plan(now, _cv_forecast(now))
+    assert cmd.lateral_velocity > 0 and cmd.acceleration > -1.0
+    assert planner.last_rollout[-1, 1] >= 1.8 and planner.last_rollout[-1, 0] > 30.0  # beside it, still going
+
+
+def test_pdm_keeps_to_the_drivable_area():
+    now = _now(10.0, [(25.0, 0.0, 0.0), (25.0, -2.2, 0.0)])
+    planner = _pdm(half_width=1.5)
+    cmd = planner.plan(now, _cv_forecast(now))
+    assert cmd.lateral_velocity <= 0 and cmd.acceleration < 0
+    assert (np.abs(planner.last_rollout[:, 1]) <= 1.5).all()
+
+
+def test_pdm_plans_around_agents_the_forecast_left_out():
+    # A stopped car dead ahead that the predictor did not forecast (and no forecast at all): still avoided.
+    now = _now(10.0, [(25.0, 0.0, 0.0), (25.0, -2.2, 0.0), (25.0, 2.2, 0.0)])
+    dropped = _cv_forecast(now)
+    dropped = Forecast(agent_id=dropped.agent_id[1:], mean=dropped.mean[1:], dt=dropped.dt)
+    for forecast in (dropped, None):
+        planner = _pdm(half_width=3.3)
+        planner.plan(now, forecast)
+        assert planner.last_rollout[:, 0].max() + 4.3 / 2 < 25.0 - 4.3 / 2
+    # The forecast still counts where it has the agent: told the car ahead drives off, the ego does not stop.
+    moving = _cv_forecast(now)
+    moving.mean[0] += np.stack([np.arange(1, 26) * 0.2 * 12.0, np.zeros(25)], -1).astype(np.float32)
+    planner = _pdm(half_width=3.3)
+    planner.plan(now, moving)
+    assert planner.last_rollout[-1, 0] > 25.0
+
+
+def test_pdm_commands_are_smooth_unless_a_collision_forces_them():
+    # A slower car cuts into the lane 12 m ahead: the ego brakes within nuPlan's comfort bounds.
+    now = _now(10.0, [(14.0, 2.0, 6.0)])
+    fc = _cv_forecast(now)
+    fc.mean[0, :, 1] = np.maximum(2.0 - 1.5 * np.arange(1, 26) * 0.2, 0.0)
+    acc = np.array([c.acceleration for c in _drive(_pdm(), now, fc, 15)])
+    jerk = np.abs(np.diff(np.concatenate([[0.0], acc]))) / 0.2
+    assert acc.min() < -0.5 and np.abs(acc).max() <= 4.05 and jerk.max() <= 8.37
+
+
+def test_pdm_is_deterministic_and_copyable():
+    import copy
+    import pickle
+
+    rng = np.random.default_rng(0)
+    others = [(float(x), float(y), float(v)) for x, y, v in
+              zip(rng.uniform(-40, 60, 80), rng.uniform(-5, 5, 80), rng.uniform(0, 12, 80), strict=True)]
+    now = _now(8.0, others)
+    fc = _cv_forecast(now)
+    a = _pdm()
+    a.plan(now, fc)
+    b, c = copy.deepcopy(a), pickle.loads(pickle.dumps(a))
+    assert a.plan(now, fc) == b.plan(now, fc) == c.plan(now, fc)
+    assert isinstance(a, Planner)
+
+
+def test_make_planner_defaults_to_pdm_and_keeps_sampling():
+    from simharness.closedloop.episode import make_planner
+    from simharness.scenario import load_scenario
+
+    spec = load_scenario("scenarios/stress/cut_in.toml")
+    assert isinstance(make_planner("const-vel", spec, None), PDMPlanner)
+    assert isinstance(make_planner("oracle", spec, None, kind="sampling"), SamplingPlanner)
+    assert isinstance(make_planner("none", spec, None), BackgroundPlanner)
+
+
+def test_the_episode_ends_as_completed_when_the_ego_reaches_the_end_of_its_road():
+    from simharness.closedloop.config import LoopConfig
+    from simharness.closedloop.episode import make_planner, prepare_spec, simulate
+    from simharness.scenario import load_scenario
+
+    spec = prepare_spec(load_scenario("scenarios/stress/cut_in.toml")).with_overrides(
+        {"road.length": 200.0, "duration": 30.0, "warmup": 5.0, "events": []})
+    scene, _, road, _ = simulate(spec, 0, None, make_planner("blind", spec, None), LoopConfig())
+    e = scene.ego
+    assert scene.num_frames < spec.num_frames  # ended early ...
+    assert scene.valid[e].all() and scene.speed[e, -1] > 5.0  # ... driving, not stuck at the road's end
+    end = max(p[:, 0].max() for p in road.drivable)
+    assert end - spec.road.speed_limit * 4.0 - 5.0 <= scene.xy[e, -1, 0] < end - 20.0

@@ -50,24 +50,67 @@ def test_planner_sees_the_env_observation_and_maps_actions_like_the_env():
     env.close()
 
 
-def test_sb3_policy_drives_the_closed_loop(tmp_path):
+def test_forecast_observation_matches_the_env():
+    cfg = {"duration": 4.0, "warmup": 8.0, "predictor": "const-vel", "num_agents": 8}
+    env = gym.make("simharness/HighwayDense-v0", config=cfg).unwrapped
+    obs, _ = env.reset(seed=3)
+    policy = Recorder((0.0, 0.0))
+    planner = PolicyPlanner(policy, {k: v for k, v in cfg.items() if k not in ("duration", "warmup")})
+    for frame in env._history.frames:
+        planner.plan(_now(frame), None)
+    assert set(policy.seen[-1]) == {"agents", "forecast"}
+    assert all(np.array_equal(policy.seen[-1][k], obs[k]) for k in obs)
+    env.close()
+
+
+def test_sb3_policies_drive_the_closed_loop_loaded_without_unpickling(tmp_path):
+    import json
+    import zipfile
+
     import torch
     from stable_baselines3 import PPO
 
     torch.set_num_threads(1)
-    env = gym.make("simharness/HighwayDense-v0", config={"duration": 4.0, "warmup": 8.0})
+    env = gym.make("simharness/HighwayDense-v0", config={"duration": 4.0, "warmup": 8.0, "action": "discrete"})
     PPO("MlpPolicy", env, n_steps=64, seed=0, device="cpu").save(tmp_path / "p.zip")
     env.close()
+    # Garble every pickled field: the loader must rebuild them, never unpickle what the file holds.
+    with zipfile.ZipFile(tmp_path / "p.zip") as z:
+        files = {n: z.read(n) for n in z.namelist()}
+    data = json.loads(files["data"])
+    for value in data.values():
+        if isinstance(value, dict) and ":serialized:" in value:
+            value[":serialized:"] = "not a pickle"
+    files["data"] = json.dumps(data).encode()
+    with zipfile.ZipFile(tmp_path / "garbled.zip", "w") as z:
+        for name, blob in files.items():
+            z.writestr(name, blob)
     spec = prepare_spec(load_scenario("highway_mixed_dense").with_overrides({"duration": 4.0, "warmup": 8.0}))
-    planner = load_policy_planner(tmp_path / "p.zip")
+    planner = load_policy_planner(tmp_path / "garbled.zip")  # no JSON note: the config comes from its spaces
+    assert planner.config["action"] == "discrete"
     scene, _, _, timing = simulate(spec, 0, None, planner, LoopConfig())
     e = scene.ego
     assert e >= 0 and scene.valid[e].sum() >= 15 and timing["plan"] > 0
     with pytest.raises(UserError, match="no such file"):
         load_policy_planner(tmp_path / "missing.zip")
     (tmp_path / "bad.zip").write_bytes(b"not a zip")
-    with pytest.raises(UserError, match="not a stable-baselines3 PPO model"):
+    with pytest.raises(UserError, match="not a stable-baselines3 model"):
         load_policy_planner(tmp_path / "bad.zip")
+    with pytest.raises(UserError, match="observation_space has shape"):
+        load_policy_planner(tmp_path / "p.zip", {"action": "discrete", "num_agents": 4})
+
+
+def test_the_episode_ends_at_the_policy_s_collision():
+    """Full throttle into dense traffic: the loop stops at the first contact, as the env does, and the
+    shorter Scene is scored like any other."""
+    from simharness.closedloop import score_episode
+
+    spec = prepare_spec(load_scenario("highway_mixed_dense").with_overrides({"duration": 30.0, "warmup": 20.0}))
+    planner = PolicyPlanner(Recorder((1.0, 0.0)))
+    scene, issued, _, _ = simulate(spec, 0, None, planner, LoopConfig())
+    assert planner.ended and scene.num_frames < spec.num_frames
+    scores = score_episode(scene, issued, LoopConfig())
+    assert scores["collided"] == 1.0 and scores["first_collision_t"] == pytest.approx(scene.times[-1])
 
 
 def test_the_shipped_policy_loads_with_its_note():
@@ -77,8 +120,9 @@ def test_the_shipped_policy_loads_with_its_note():
 
     note = json.loads(SHIPPED.with_suffix(".json").read_text())
     assert note["trained_steps"] > 0 and "command" in note and SHIPPED.stat().st_size < 5_000_000
-    planner = load_policy_planner()
-    env = gym.make("simharness/HighwayDense-v0", config={"duration": 4.0, "warmup": 8.0}).unwrapped
+    planner = load_policy_planner("ppo")
+    config = {k: v for k, v in note["env_config"].items() if k not in ("duration", "warmup")}
+    env = gym.make("simharness/HighwayDense-v0", config={**config, "duration": 4.0, "warmup": 8.0}).unwrapped
     obs, _ = env.reset(seed=0)
     action, _ = planner.policy.predict(obs, deterministic=True)
     assert env.action_space.contains(action)

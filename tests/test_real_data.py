@@ -101,7 +101,7 @@ def test_traphic_on_traf_pixels(datasets):
     assert 1.0 < m["ade"] < 200.0 and m["fde"] > m["ade"]
 
 
-# ---------------------------------------------------------------------- every TRAF video usable (issue 14)
+# ---------------------------------------------------------------------- every TRAF video usable
 def test_import_traf_options_make_bare_numbered_videos_usable(tmp_path, capsys):
     """TRAF13 has bare numeric ids (no class column) and is a 1920x1080 video: the import warns in one line,
     types them with --type-default, estimates a pixel scale from the boxes, and takes the image size from the data."""
@@ -148,7 +148,7 @@ def test_traf_image_size_from_the_data():
     assert sizes == {"TRAF11": [1280, 720], "TRAF18": [640, 360], "TRAF25": [640, 480], "TRAF37": [960, 540]}
 
 
-# ---------------------------------------------------------------------- ApolloScape scored from the CLI (issue 14)
+# ---------------------------------------------------------------------- ApolloScape scored from the CLI
 @pytest.fixture(scope="module")
 def apollo(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("apollo") / "apollo"
@@ -193,7 +193,7 @@ def test_apolloscape_train_evaluate_benchmark(apollo, tmp_path):
     assert main(["benchmark", "--data", str(apollo), "--protocol", "nope", "--out", str(tmp_path / "b2")]) == 2
 
 
-# ---------------------------------------------------------------------- ETH/UCY validation on *_val files (issue 14)
+# ---------------------------------------------------------------------- ETH/UCY validation on *_val files
 def _sgan_layout(root: Path) -> Path:
     """A Social-GAN style leave-one-out folder from the real samples: zara01 held out (test/), hotel cut in time
     into its _train (first 80% of lines) and _val files, as the benchmark's own files are."""
@@ -236,7 +236,7 @@ def test_eth_ucy_training_validates_on_val_files(tmp_path, capsys):
     assert _metrics(tmp_path / "ev")["scene_ids"] == ["crowds_zara01"]
 
 
-# ---------------------------------------------------------------------- sim-to-real: train --init (issue 14)
+# ---------------------------------------------------------------------- sim-to-real: train --init
 def test_train_init_fine_tunes_shipped_and_run_weights(datasets, tmp_path, capsys):
     """--init shipped starts TRAF training from the synthetic-data weights (its first validation is theirs, not a
     random network's); --init RUN continues a run; another model config is refused in one line."""
@@ -245,7 +245,7 @@ def test_train_init_fine_tunes_shipped_and_run_weights(datasets, tmp_path, capsy
     from predictor.predict import ModelPredictor
 
     traf, common = str(datasets["traf"]), ["--test-scenes", "TRAF12", "--epochs", "1", "--warmup-epochs", "1",
-                                            "--max-samples", "64", "--select", "loss", "--no-residual"]
+                                            "--max-samples", "64", "--select", "loss"]
     tuned, scratch = tmp_path / "tuned", tmp_path / "scratch"
     assert main(["train", "--data", traf, *common, "--init", "shipped", "--out", str(tuned)]) == 0
     assert main(["train", "--data", traf, *common, "--out", str(scratch)]) == 0
@@ -261,11 +261,12 @@ def test_train_init_fine_tunes_shipped_and_run_weights(datasets, tmp_path, capsy
     assert main(["train", "--data", traf, *common, "--init", str(tuned), "--out", str(tmp_path / "again")]) == 0
     assert json.loads((tmp_path / "again" / "config.json").read_text())["train"]["init"]["from"] == str(tuned)
     capsys.readouterr()
-    # The residual form (the default) is another network than the shipped paper-form weights.
-    assert main(["train", "--data", traf, *common[:-1], "--init", "shipped", "--out", str(tmp_path / "bad")]) == 2
+    # The paper's form is another network than the shipped residual weights.
+    assert main(["train", "--data", traf, *common, "--no-residual", "--init", "shipped",
+                 "--out", str(tmp_path / "bad")]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "--init shipped: its model config differs" in err
-    assert "residual False vs True" in err
+    assert "residual True vs False" in err
     assert main(["train", "--data", traf, *common, "--model", "cs-lstm", "--init", str(tuned),
                  "--out", str(tmp_path / "bad2")]) == 2
     assert "model 'traphic' vs 'cs-lstm'" in capsys.readouterr().err

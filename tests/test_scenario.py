@@ -37,6 +37,12 @@ BAD = {
     "unknown agent type": (GOOD.replace("car = 600", "tuktuk = 600"), ["key 'demand.tuktuk'", "unknown agent type"]),
     "bad layout": (GOOD.replace('layout = "arterial"', 'layout = "roundabout"'), ["key 'road.layout'", "one of"]),
     "not toml": (GOOD + "[road\n", ["not valid TOML"]),
+    "all-zero demand": (GOOD.replace("car = 600", "car = 0").replace("motorcycle = 400", "motorcycle = 0")
+                        .replace("crossing_rate = 60", "crossing_rate = 0"), ["key 'demand'", "no agents at all"]),
+    "zero demand_scale": (GOOD.replace('backend = "sumo"', 'backend = "sumo"\ndemand_scale = 0'),
+                          ["key 'demand'", "demand_scale = 0"]),
+    "nested 100,000 deep": ("x = " + "[" * 100_000 + "]" * 100_000 + "\n", ["nested too deeply"]),
+    "a megabyte and more": (GOOD + "#" * (1 << 20) + "\n", ["bytes; a scenario file is at most"]),
 }
 
 
@@ -80,3 +86,12 @@ def test_cli_exits_2_and_writes_nothing(tmp_path: Path, case: str) -> None:
     assert not out.exists() and proc.stdout == ""
     check = run_cli("scenario", str(path))
     assert check.returncode == 2 and check.stderr.strip() == lines[0]
+
+
+def test_the_simulator_seed_stays_in_range(tmp_path: Path) -> None:
+    path = tmp_path / "s.toml"
+    path.write_text(GOOD.replace('backend = "sumo"', 'backend = "sumo"\nseed = 2147483000'))
+    spec = load_scenario(path)
+    assert spec.sim_seed(647) == 2**31 - 1
+    with pytest.raises(UserError, match=r"key 'seed' = 2147483000 plus job seed 648 is 2147483648, outside"):
+        spec.sim_seed(648)

@@ -98,3 +98,16 @@ def test_scorecard_carries_the_composite_with_a_ci():
     assert card["composite"]["n"] == 3
     assert card["composite"]["mean"] == pytest.approx(np.mean([e["composite"] for e in eps]))
     assert card["composite"]["lo"] <= card["composite"]["mean"] <= card["composite"]["hi"]
+
+
+def test_comfort_is_judged_from_the_first_commanded_frame():
+    # The simulator drives the ego's first frame: a jump in speed there (its hand-over) is not the planner's.
+    scene = _two_car_scene(10.0, 10.0, 30.0)
+    speed = scene.speed.copy()
+    speed[0, 0] = 8.0  # 10 m/s^2 into the second frame, then constant
+    handed = score_episode(scene.replace(speed=speed), Issued(), LoopConfig())
+    assert handed["comfortable"] == 1.0
+    # The same jump one frame later is the planner's doing.
+    speed[0, :2] = 8.0
+    later = score_episode(scene.replace(speed=speed), Issued(), LoopConfig())
+    assert later["comfortable"] == 0.0 and later["accel_max"] > 4.05

@@ -22,7 +22,7 @@ from simharness.sweep import METRICS, build_grid, parse_value, sweep
 
 def _is_timing(key: str) -> bool:
     """Wall-clock figures of an episode (they differ run to run); time_stuck_s is a score, not a timing."""
-    return key == "wall_s" or key.startswith("realtime_factor") or (
+    return key in ("wall_s", "cpu_s") or key.startswith("realtime_factor") or (
         key.startswith("time_") and key != "time_stuck_s")
 
 

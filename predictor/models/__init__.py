@@ -23,7 +23,7 @@ MODELS: dict[str, tuple[str, str, dict[str, Any]]] = {
                    {"horizon": True, "heterogeneous": False}),
     "traphic-b": ("predictor.models.traphic:TraPHic", "predictor.models.traphic:TraPHicConfig",
                   {"horizon": False, "heterogeneous": False}),
-    # The paper's baselines (H7).
+    # The paper's baselines.
     "rnn-ed": ("predictor.models.rnn_ed:RNNED", "predictor.models.rnn_ed:RNNEDConfig", {}),
     "social-lstm": ("predictor.models.social_lstm:SocialLSTM", "predictor.models.social_lstm:SocialLSTMConfig", {}),
     # Social-GAN decodes step by step from its own samples: its residual form keeps the last displacement.

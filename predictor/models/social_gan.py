@@ -15,14 +15,14 @@ error of the best of `variety_k` samples, per target) plus the adversarial loss,
 code) `anchor_weight` x the squared error of the future at z = 0, the one forecast the harness scores: the
 variety loss trains only the spread of the samples, so without it the z = 0 forecast drifted away from the
 truth as training went on (validation ADE 2.77 m after the first epoch, 5.07 m after the sixth, on 14 SUMO
-arterial scenes at the full profile; with it 1.92 m; docs/results.md, issue 14, session 8).
+arterial scenes at the full profile; with it 1.92 m; docs/results.md).
 
 A GAN gives samples, not a density: `forward` returns one future as the mean with a placeholder sigma
 (`gaussian = False` tells the predictor wrapper to report no uncertainty) and `sample` gives K futures
 (best-of-20 evaluation; their noise comes from a fixed seed, so scores are reproducible). In evaluation the one
 future is the generator at the noise's mean (z = 0), the prior's mode: a random sample is a draw from the spread
 that the variety loss trains, and at the full budget one such draw was 29% worse than constant velocity at 1 s
-(0.75 m against 0.58) where z = 0 is 14% better (0.50; docs/results.md, issue 14). In training it is a random draw.
+(0.75 m against 0.58) where z = 0 is 14% better (0.50; docs/results.md). In training it is a random draw.
 """
 
 from __future__ import annotations

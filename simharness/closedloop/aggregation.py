@@ -1,7 +1,8 @@
-"""Scores over episodes: bootstrap CIs, the scorecard (dict and plain-text table)."""
+"""Scores over episodes: bootstrap CIs, the scorecard (dict and plain-text table), written as strict JSON."""
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Sequence
 from typing import Any
@@ -34,12 +35,13 @@ _RENAMED = ("collided", "at_fault_collided", "near_miss", "progress_m", "online_
 
 
 def aggregate(episodes: Sequence[dict[str, Any]], seed: int = 0) -> dict[str, Any]:
-    """Scores over episodes: each scalar's mean with a 95% bootstrap CI; the issue's keys first.
+    """Scores over episodes (`score_episode` output, with or without `run_episode`'s seed and timings): each
+    scalar's mean with a 95% bootstrap CI; a scalar an episode lacks counts as missing there.
 
     collision_rate: share of episodes in which the ego collided; near_miss_rate: share with a near miss.
     """
     present = [e for e in episodes if e.get("ego_present")]
-    col = {k: bootstrap_ci([e[k] for e in present], seed=seed) for k in SCALARS}
+    col = {k: bootstrap_ci([e.get(k) for e in present], seed=seed) for k in SCALARS}
     by_type: dict[str, Any] = {}
     for t in AgentType:
         counts = [e["collisions_by_type"][t.label] for e in present]
@@ -51,7 +53,7 @@ def aggregate(episodes: Sequence[dict[str, Any]], seed: int = 0) -> dict[str, An
     return {
         "episodes": len(episodes),
         "episodes_with_ego": len(present),
-        "seeds": sorted(int(e["seed"]) for e in episodes),
+        "seeds": sorted(int(e["seed"]) for e in episodes if e.get("seed") is not None),
         "collision_rate": col["collided"],
         "collisions_by_type": by_type,
         "at_fault_collision_rate": col["at_fault_collided"],
@@ -61,6 +63,7 @@ def aggregate(episodes: Sequence[dict[str, Any]], seed: int = 0) -> dict[str, An
         "online_fde": col["online_fde"],
         "online_ade_rmse": col["online_ade_rmse"],
         "online_fde_rmse": col["online_fde_rmse"],
+        "forecast_coverage": col["forecast_coverage"],
         "online_by_type": online_by_type,
         **{k: v for k, v in col.items() if k not in _RENAMED},
         "bootstrap": {"resamples": 2000, "level": 0.95, "seed": seed},
@@ -84,7 +87,9 @@ SCORECARD_ROWS = (("composite", "composite score (0-1, docs/closedloop.md)"),
                   ("time_stuck_s", "time stuck (s)"), ("accel_rms", "RMS acceleration (m/s^2)"),
                   ("jerk_rms", "RMS jerk (m/s^3)"), ("min_gap_m", "minimum gap (m)"),
                   ("background_collisions_per_1000_agent_min", "background collisions / 1000 agent-min"),
-                  ("online_ade", "online ADE (m, mean Euclidean)"), ("online_fde", "online FDE (m, mean Euclidean)"),
+                  ("online_ade", "online ADE (m, mean Euclidean)"),
+                  ("forecast_coverage", "forecast coverage (share of agents in range)"),
+                  ("online_fde", "online FDE (m, mean Euclidean)"),
                   ("online_ade_rmse", "online ADE (m, RMSE)"), ("online_fde_rmse", "online FDE (m, RMSE)"),
                   ("realtime_factor", "simulated s per wall s"))
 
@@ -103,3 +108,26 @@ def scorecard_table(scores: dict[str, dict[str, Any]]) -> str:
                      + "".join(f"{scores[n]['collisions_by_type'][t]['total']:>26}" for n in names))
     return "\n".join(lines)
 
+
+
+def finite_json(obj: Any) -> Any:
+    """obj with every NaN or infinite number replaced by None (and numpy values by plain ones), recursively,
+    so that it serialises as strict JSON (`null`, never the bare NaN / Infinity tokens)."""
+    if isinstance(obj, dict):
+        return {str(k): finite_json(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [finite_json(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return finite_json(obj.tolist())
+    if isinstance(obj, (bool, np.bool_)):
+        return bool(obj)
+    if isinstance(obj, (int, np.integer)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        return float(obj) if math.isfinite(obj) else None
+    return obj
+
+
+def strict_dumps(obj: Any, indent: int | None = 1) -> str:
+    """Strict JSON text (sorted keys; NaN and infinities as null; paths and other objects as strings)."""
+    return json.dumps(finite_json(obj), sort_keys=True, indent=indent, allow_nan=False, default=str)

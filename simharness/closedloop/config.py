@@ -34,6 +34,7 @@ class EpisodeJob:
     keep_forecasts: bool = False  # return every forecast (for animations)
     keep_scene: bool = True
     perturbation: Perturbation | None = None  # degrade the predictor's forecasts (closedloop.perturbations)
+    planner: str = "pdm"  # pdm | sampling | ppo | a policy .zip | file.py:NAME | module:NAME (episode.make_planner)
 
 
 @dataclasses.dataclass
@@ -42,6 +43,8 @@ class Issued:
 
     frames: list[int] = dataclasses.field(default_factory=list)
     forecasts: list[Forecast] = dataclasses.field(default_factory=list)
+    asked: int = 0  # agents in range summed over prediction steps (the targets the predictor was asked about)
+    answered: int = 0  # of those, the ones that got a forecast (coverage = answered / asked)
 
 
 class LoopClock:

@@ -37,7 +37,7 @@ from the live state. It checks that the episode did follow the branch (`mismatch
 live state differed from it; each starts a new branch). Its online error is scored like any
 predictor's, so how exact it was is visible in every scorecard.
 
-"static" (`StaticForecast`): the sampling planner with no prediction: everyone stays put.
+"static" (`StaticForecast`): the planner with no prediction: everyone stays put.
 """
 
 from __future__ import annotations
@@ -55,7 +55,7 @@ from simharness.sim.base import EgoCommand, Frame
 
 
 class StaticForecast:
-    """"static": the sampling planner with no prediction at all: everyone stays where they are now."""
+    """"static": the planner with no prediction at all: everyone stays where they are now."""
 
     def predict(self, history: Scene, targets: np.ndarray, horizon: int) -> Forecast:
         targets = np.asarray(targets, int)

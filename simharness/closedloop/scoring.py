@@ -12,7 +12,8 @@ Composite, per episode (E episodes vectorise: every input (E,), output (E,)):
 - progress_ratio: the ego's progress over the traffic flow's (the mean speed of the vehicles within
   `FLOW_RADIUS` m of the ego times the ego's time), capped at 1; making_progress: progress_ratio >= 0.2;
 - ttc_ok: no near miss (time-to-collision never below `LoopConfig.ttc_threshold`);
-- comfortable: peak |acceleration|, |jerk| and |lateral acceleration| within `COMFORT_BOUNDS` (nuPlan's).
+- comfortable: peak |acceleration|, |jerk| and |lateral acceleration| within `COMFORT_BOUNDS` (nuPlan's), from the
+  ego's first commanded frame on (the simulator drives its first frame).
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ SCALARS = ("collided", "collisions", "at_fault_collided", "at_fault_collisions",
            "near_misses_per_min", "min_gap_m", "background_collisions", "background_collisions_per_1000_agent_min",
            "progress_m", "mean_speed", "time_stuck_s", "accel_rms", "jerk_rms", "lat_accel_max", "online_ade",
            "online_fde", "online_ade_rmse", "online_fde_rmse", "realtime_factor", "composite", "left_drivable",
-           "progress_ratio", "ttc_ok", "comfortable")
+           "progress_ratio", "ttc_ok", "comfortable", "forecast_coverage")
 
 COMPOSITE_WEIGHTS = {"progress": 5.0, "ttc": 5.0, "comfort": 2.0}  # nuPlan's weights for these three
 COMFORT_BOUNDS = {"accel_max": 4.05, "jerk_max": 8.37, "lat_accel_max": 4.89}  # m/s^2, m/s^3 (nuPlan's)
@@ -136,7 +137,11 @@ def score_episode(scene: Scene, issued: Issued, config: LoopConfig) -> dict[str,
         "time_stuck_s": comfort.time_stuck(scene.speed[e], va[e], dt, config.stuck_speed),
         "ego_seconds": float(va[e].sum() * dt),
     })
-    c = comfort.comfort_summary(scene.speed[e], hd[e], va[e], dt)
+    # Comfort from the ego's first commanded frame on: the simulator drives its first frame (the hand-over is not
+    # the planner's doing; the first command's jerk would be measured against the simulator's own acceleration).
+    driven = va[e].copy()
+    driven[first] = False
+    c = comfort.comfort_summary(scene.speed[e], hd[e], driven, dt)
     out.update({k: c[k] for k in ("accel_rms", "jerk_rms", "lat_accel_max", "accel_max", "jerk_max")})
     road = RoadGeometry.from_dict(scene.meta["road"]) if "road" in scene.meta else RoadGeometry()
     flow = flow_progress(xy, scene.speed, scene.agent_type, va, e, dt)
@@ -148,6 +153,8 @@ def score_episode(scene: Scene, issued: Issued, config: LoopConfig) -> dict[str,
     out["composite"] = float(composite_score(out["at_fault_collided"], out["left_drivable"], out["progress_ratio"],
                                              out["ttc_ok"], out["comfortable"]))
     out.update(online_errors(scene, issued))
+    # share of the agents in range, over the prediction steps, that got a forecast (nan: never asked)
+    out["forecast_coverage"] = issued.answered / issued.asked if issued.asked else nan
     return out
 
 

@@ -23,7 +23,7 @@ from typing import Any
 
 from simharness.closedloop.aggregation import bootstrap_ci
 from simharness.closedloop.config import EpisodeJob, LoopConfig
-from simharness.closedloop.episode import REFERENCE_EGOS, prepare_spec, run_episode
+from simharness.closedloop.episode import REFERENCE_EGOS, prepare_spec, raise_user_error, run_episode
 from simharness.closedloop.perturbations import Perturbation, parse_grid
 from simharness.errors import SimulatorError, UserError
 from simharness.io.folders import prepare_output
@@ -58,9 +58,9 @@ def sensitivity(spec: ScenarioSpec, predictor: str, grid: Sequence[Perturbation]
     if predictor in ("none", "blind"):
         raise UserError(f"--predictor {predictor}: drives without forecasts, so there is nothing to perturb")
     if predictor not in REFERENCE_EGOS:
-        from simharness.predictors import load_predictor
+        from simharness.plugins import check_predictor
 
-        load_predictor(predictor)  # a bad name fails now, before any process starts
+        check_predictor(predictor, REFERENCE_EGOS)  # a bad name fails now, before any process starts
     jobs = sensitivity_jobs(spec, predictor, grid, seeds, config)
     t0 = time.perf_counter()
     scores: dict[str, list[dict[str, Any]]] = {p.label(): [] for p in grid}
@@ -73,6 +73,7 @@ def sensitivity(spec: ScenarioSpec, predictor: str, grid: Sequence[Perturbation]
             if r.ok:
                 scores[label].append(r.value)
             else:
+                raise_user_error(r.error)  # bad input (an invalid forecast) is one line, not a failed episode
                 failed.append(f"{label} seed {r.job.seed}: {r.error}")
             bar.update(1)
             bar.set_postfix_str(label)
@@ -89,6 +90,8 @@ def sensitivity_jobs(spec: ScenarioSpec, predictor: str, grid: Sequence[Perturba
                      config: LoopConfig | None = None) -> list[EpisodeJob]:
     """One episode job per (perturbation, seed), perturbation-major."""
     spec = prepare_spec(spec)
+    if seeds:  # the seed the simulator gets stays 32-bit, or one line before any work
+        spec.sim_seed(max(seeds))
     return [EpisodeJob(spec, int(s), predictor, config or LoopConfig(), keep_scene=False, perturbation=p)
             for p in grid for s in seeds]
 

@@ -14,27 +14,37 @@ Configuration: ``gymnasium.make(id, config={...})``; keys and defaults in `DEFAU
 (`simharness.envs.config`, like highway-env's ``default_config()``); unknown keys, non-finite and
 out-of-range values are refused with one line (`UserError`).
 
-Observation (``Box(-1, 1, (K + 1, H, F))`` float32, `simharness.envs.observation`): the ego (row 0) and
-its K nearest agents (rows 1..K, nearest first) over the last H frames, in the ego's frame at the
-current step (x ahead, y left), features ``present, x / range, y / range, vx / 30, vy / 30, cos(dh),
-sin(dh), length / 15, width / 3`` and a one-hot `AgentType` (9), all clipped to [-1, 1]; ``present``
-(feature 0) is the mask: absent rows and frames are zero. With ``config["predictor"]`` set the
-observation is a Dict ``{"agents": that Box, "forecast": Box(-1, 1, (K, Ff, 3))}`` with each
-neighbour's forecast positions (present, x / range, y / range) over Ff frames from that predictor.
+Observation (`simharness.envs.observation`): the ego (row 0) and its K nearest agents (rows 1..K,
+nearest first) over the last H frames, in the ego's frame at the current step (x ahead, y left),
+features ``present, x / range, y / range, vx / 30, vy / 30, cos(dh), sin(dh), length / 15, width / 3``
+and a one-hot `AgentType` (9), all clipped to [-1, 1]; ``present`` (feature 0) is the mask. By default
+(``flatten``) a 1-D ``Box(-1, 1, ((K + 1) * H * F,))`` float32 (reshape to (K + 1, H, F)); with
+``flatten = False`` the (K + 1, H, F) array. With ``config["predictor"]`` set the observation is a Dict
+``{"agents": that Box, "forecast": Box(-1, 1, (K * Ff * 3,))}`` (or (K, Ff, 3)) with each neighbour's
+forecast positions (present, x / range, y / range) over Ff frames from that predictor.
 
-Action (``Box(-1, 1, (2,))`` float32): ``a[0]`` longitudinal acceleration, ``a[0] * max_accel`` when
-positive and ``a[0] * max_decel`` when negative (m/s^2); ``a[1] * max_lateral_speed`` lateral velocity
-(m/s, + left); held for the next frame. Values outside [-1, 1] are clipped; NaN or infinite values
-raise ValueError (nothing is stepped). `DenseTrafficEnv.command(action)` gives the physical `EgoCommand`.
+Action (`simharness.envs.actions`): ``config["action"] = "continuous"`` (default), ``Box(-1, 1, (2,))``:
+acceleration ``a[0] * max_accel`` / ``a[0] * max_decel`` (m/s^2) and lateral velocity ``a[1] *
+max_lateral_speed`` (m/s, + left); NaN or infinite values raise ValueError (nothing is stepped).
+``"discrete"``: ``Discrete(12)`` meta-actions, {brake, slower, hold, faster} x {nudge left, straight,
+nudge right}. `DenseTrafficEnv.command(action)` gives the physical `EgoCommand`.
 
-Reward per step (weights in ``config["reward"]``, `simharness.envs.reward`): ``progress * metres made
-good along the ego's heading + collision * (1 on the first frame of each new ego contact) + accel * a^2
-+ jerk * (da/dt)^2 + lateral * v_lat^2`` (the comfort weights are negative). An episode terminates on a
-collision (if ``terminate_on_collision``) or when the ego leaves the road, and is truncated after
-``duration`` s; ``step`` after either raises RuntimeError until ``reset``.
+Reward per step (weights in ``config["reward"]``, `simharness.envs.reward`): a collision-free step on the
+road earns ``alive + progress * min(speed made good / target_speed, 1)`` less the comfort terms on what
+the ego did (measured acceleration, jerk, speed across the traffic flow), each saturating at the
+scorecard's comfort bounds, so every such step earns >= 0 at the defaults; a new contact, judged as the
+scorecard judges it, pays ``collision_at_fault`` (or ``collision_hit``) times the best episode's return.
+So any collision-free episode outscores any episode with an at-fault collision. An episode terminates on
+a collision (if ``terminate_on_collision``) or when the ego leaves the end of the road, and is truncated
+after ``duration`` s; ``step`` after either raises RuntimeError until ``reset``.
+
+Rendering (``render_mode="rgb_array"``): (300, 720, 3) uint8 top-down frames around the ego in the
+project's drawing style, the same for both envs (`simharness.envs.render`); ``"human"`` shows them in a
+window and is refused (`UserError`) without a display.
 
 ``info`` holds fixed-shape scalars only (vector envs stack them): ``t``, ``speed``, ``progress_m``,
-``collided``, ``collisions``, ``min_ttc`` (s, capped at 10), ``min_gap`` (m, capped at 100).
+``collided``, ``collisions``, ``at_fault_collisions``, ``on_road``, ``min_ttc`` (s, capped at 10),
+``min_gap`` (m, capped at 100).
 """
 
 from __future__ import annotations

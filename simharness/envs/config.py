@@ -24,15 +24,24 @@ DEFAULT_CONFIG: dict[str, Any] = {
     "num_agents": 16,  # K nearest agents observed
     "history_frames": 5,  # H frames of history per agent
     "obs_range": 60.0,  # m: positions are divided by this; agents farther away are not observed
-    "predictor": None,  # e.g. "const-vel" or "traphic": adds the "forecast" observation
+    "predictor": None,  # e.g. "const-vel", "traphic" or "mine.py:Model" (docs/predictors.md): adds the "forecast"
+    # observation
     "forecast_frames": 10,  # Ff forecast frames in the observation
     "max_accel": 2.5,  # m/s^2 for action[0] = +1
     "max_decel": 7.0,  # m/s^2 of braking for action[0] = -1
     "max_lateral_speed": 1.5,  # m/s for action[1] = +-1
+    "action": "continuous",  # continuous: Box(-1, 1, (2,)); discrete: Discrete(12) meta-actions (DISCRETE_ACTIONS)
+    "flatten": True,  # observation as a 1-D vector (reshape to (K + 1, H, F)); False: the (K + 1, H, F) array
     "terminate_on_collision": True,
-    "reward": {"progress": 0.1, "collision": -10.0, "accel": -0.01, "jerk": -0.0005, "lateral": -0.01},
+    "target_speed": None,  # m/s at which the progress term is full; None: the scenario's road speed limit
+    # Reward weights (`simharness.envs.reward`): per collision-free step on the road, alive + progress *
+    # min(speed made good / target_speed, 1), plus the comfort terms, each weight * min((measured / bound)^2, 1);
+    # a collision step pays its weight times steps * (alive + progress + |accel| + |jerk| + |lateral|).
+    "reward": {"alive": 0.1, "progress": 0.9, "accel": -0.05, "jerk": -0.05, "lateral": -0.05,
+               "collision_at_fault": -1.0, "collision_hit": -0.5},
 }
 REACTIONS = (None, "reactive", "cut_in", "ignore")
+ACTIONS = ("continuous", "discrete")
 _POSITIVE = ("duration", "obs_range", "max_accel", "max_decel", "max_lateral_speed")
 _COUNTS = ("num_agents", "history_frames", "forecast_frames", "episodes_per_warmup")
 
@@ -77,6 +86,13 @@ def _check(c: dict[str, Any], where: str) -> None:
         raise UserError(f"{where} config: key 'warmup': expected >= 0 or None, got {c['warmup']!r}")
     for term, weight in c["reward"].items():
         _number(where, f"reward.{term}", weight)
+    if c["target_speed"] is not None and _number(where, "target_speed", c["target_speed"]) <= 0:
+        raise UserError(f"{where} config: key 'target_speed': expected > 0 or None, got {c['target_speed']!r}")
+    if c["action"] not in ACTIONS:
+        raise UserError(f"{where} config: key 'action': expected one of {ACTIONS}, got {c['action']!r}")
+    for key in ("flatten", "terminate_on_collision"):
+        if not isinstance(c[key], bool):
+            raise UserError(f"{where} config: key {key!r}: expected true or false, got {c[key]!r}")
     if c["reaction"] not in REACTIONS:
         raise UserError(f"{where} config: key 'reaction': expected one of {REACTIONS}, got {c['reaction']!r}")
     if not isinstance(c["overrides"], dict):

@@ -7,49 +7,70 @@ SumoDense-v0 envs live side by side in one process.
 
 from __future__ import annotations
 
-import math
+import collections
+import os
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from simharness.envs.actions import action_space, action_to_command
 from simharness.envs.config import DEFAULT_CONFIG, resolve_config
-from simharness.envs.observation import FEATURES, History, agents_observation, ego_offsets, ego_rotation
-from simharness.envs.reward import GAP_CAP, TTC_CAP, ego_safety, step_reward
-from simharness.errors import SimulatorError
+from simharness.envs.observation import FEATURES, History, agents_observation, ego_offsets, forecast_observation
+from simharness.envs.reward import (
+    FAULT_FRAMES,
+    GAP_CAP,
+    TTC_CAP,
+    box_frame,
+    ego_fault,
+    ego_motion,
+    ego_on_road,
+    ego_safety,
+    step_reward,
+)
+from simharness.errors import SimulatorError, UserError
 from simharness.scenario import ScenarioSpec, load_scenario
-from simharness.sim.base import EgoCommand, Frame, scene_from_frames
+from simharness.sim.base import EgoCommand
+
+__all__ = ["DenseTrafficEnv", "HighwayDenseEnv", "SumoDenseEnv", "action_to_command"]
+
+
+def _has_display() -> bool:
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
 
 
 class DenseTrafficEnv(gym.Env):
     """Base of both envs: wraps any `Simulator` built from a scenario with its ego enabled."""
 
-    metadata = {"render_modes": ["rgb_array"], "render_fps": 5}
+    metadata = {"render_modes": ["rgb_array", "human"], "render_fps": 5}
     default_scenario = "sumo_arterial_dense"
     worker_process = False  # run the simulator in a worker process (SUMO: libsumo holds one per process)
 
     def __init__(self, config: dict[str, Any] | None = None, render_mode: str | None = None) -> None:
         name = type(self).__name__
         self.config = resolve_config(self.default_config(), config, name)
-        if render_mode not in (None, "rgb_array"):
-            from simharness.errors import UserError
-
-            raise UserError(f"{name}: render_mode {render_mode!r}: expected None or 'rgb_array'")
+        if render_mode not in (None, "rgb_array", "human"):
+            raise UserError(f"{name}: render_mode {render_mode!r}: expected None, 'rgb_array' or 'human'")
+        if render_mode == "human" and not _has_display():
+            raise UserError(f"{name}: render_mode 'human' needs a display (DISPLAY is not set); use 'rgb_array' "
+                            "and save or show the frames yourself")
+        if not _has_display():  # an instance lists the modes it can show (env checkers build every listed mode)
+            self.metadata = {**self.metadata, "render_modes": ["rgb_array"]}
         self.render_mode = render_mode
         self.spec_ = self._scenario_spec()
         c = self.config
-        k, h = int(c["num_agents"]), int(c["history_frames"])
-        agents = spaces.Box(-1.0, 1.0, (k + 1, h, FEATURES), np.float32)
-        if c["predictor"]:
-            self.observation_space = spaces.Dict(
-                {"agents": agents, "forecast": spaces.Box(-1.0, 1.0, (k, int(c["forecast_frames"]), 3), np.float32)})
-        else:
-            self.observation_space = agents
-        self.action_space = spaces.Box(-1.0, 1.0, (2,), np.float32)
+        h = int(c["history_frames"])
+        self.observation_space = observation_space(c)
+        self.action_space = action_space(c)
+        self._episode_steps = max(1, int(round(float(c["duration"]) / self.spec_.dt)))
+        target = c["target_speed"] if c["target_speed"] is not None else self.spec_.road.speed_limit
+        self._target_step = float(target) * self.spec_.dt  # m per step at which the progress term is full
         self._sim = None
         self._predictor = None
         self._history = History(h)
+        self._recent: collections.deque = collections.deque(maxlen=FAULT_FRAMES)  # for the fault judgement
+        self._window = None  # the human render mode's figure
         self._done = True  # no episode yet: step() needs reset()
         self._episodes_in_sim = 0
 
@@ -101,23 +122,29 @@ class DenseTrafficEnv(gym.Env):
             self._episodes_in_sim = 0
         self._episodes_in_sim += 1
         self._history.clear()
+        self._recent.clear()
         self._history.append(frame)
+        self._recent.append(frame)
         ego_frames = int(frame.ego >= 0)
         for _ in range(h + 50):  # let the ego in and build up its history under the simulator's own model
             if frame.ego >= 0 and ego_frames >= h:
                 break
             frame = self._sim.step(None)
             self._history.append(frame)
+            self._recent.append(frame)
             ego_frames = ego_frames + 1 if frame.ego >= 0 else 0
         if frame.ego < 0 or ego_frames < h:
             raise SimulatorError(f"{self.spec_.name}: the ego did not enter the road within {h + 50} frames")
+        prev = self._history.frames[-2]
+        self._prev_acc = (float(frame.speed[frame.ego]) - float(prev.speed[prev.ego])) / self.spec_.dt
         self._steps = 0
-        self._prev_acc = 0.0
-        self._contact_prev = False
+        self._contact_prev = ego_safety(box_frame(frame)).contact  # an overlap the simulator placed is not new
         self._collisions = 0
+        self._at_fault = 0
         self._progress = 0.0
         self._done = False
-        return self._observation(), self._info(TTC_CAP, GAP_CAP)
+        obs, _ = self._observation()
+        return obs, self._info(TTC_CAP, GAP_CAP)
 
     def step(self, action: np.ndarray) -> tuple[Any, float, bool, bool, dict[str, Any]]:
         if self._sim is None or self._done:
@@ -127,43 +154,59 @@ class DenseTrafficEnv(gym.Env):
         prev = self._history.now
         frame = self._sim.step(command)
         self._history.append(frame)
+        self._recent.append(frame)
         self._steps += 1
         if frame.ego < 0:  # the ego drove off the end of the road: done, nothing more to score
             self._done = True
-            return self._observation(), 0.0, True, False, self._info(TTC_CAP, GAP_CAP)
-        if prev.ego >= 0:  # Python floats: the float64 arithmetic of numpy's, without its per-scalar overhead
-            (x, y), (px, py) = frame.xy[frame.ego].tolist(), prev.xy[prev.ego].tolist()
-            h = float(prev.heading[prev.ego])
-            moved = (x - px) * float(np.cos(h)) + (y - py) * float(np.sin(h))
-        else:
-            moved = 0.0
-        self._progress += moved
+            obs, _ = self._observation()
+            return obs, 0.0, True, False, self._info(TTC_CAP, GAP_CAP)
         offsets = ego_offsets(frame)  # shared by the safety terms and the observation
-        safe = ego_safety(frame, offsets)
+        safe = ego_safety(box_frame(frame), offsets)
+        obs, near = self._observation(offsets[2])
+        motion = ego_motion(prev, frame, near, self.spec_.dt, self._prev_acc)
+        self._prev_acc = motion.accel
+        self._progress += motion.moved
         new_contact = safe.contact and not self._contact_prev
         self._contact_prev = safe.contact
-        self._collisions += int(new_contact)
-        reward = step_reward(c["reward"], moved, new_contact, command.acceleration, self._prev_acc,
-                             command.lateral_velocity, self.spec_.dt)
-        self._prev_acc = float(command.acceleration)
+        collision = None
+        if new_contact:
+            at_fault = ego_fault(list(self._recent), self.spec_.dt)
+            collision = "at_fault" if at_fault else "hit"
+            self._collisions += 1
+            self._at_fault += int(at_fault)
+        on_road = ego_on_road(frame, self._sim.road)
+        reward = step_reward(c["reward"], motion, self._target_step, float(c["max_lateral_speed"]), on_road,
+                             collision, self._episode_steps)
         terminated = bool(new_contact and c["terminate_on_collision"])
-        truncated = not terminated and self._steps * self.spec_.dt >= float(c["duration"]) - 1e-9
+        truncated = not terminated and self._steps >= self._episode_steps
         self._done = terminated or truncated
-        return (self._observation(offsets[2]), float(reward), terminated, bool(truncated),
-                self._info(safe.ttc, safe.gap))
+        return obs, float(reward), terminated, bool(truncated), self._info(safe.ttc, safe.gap, on_road)
 
-    def command(self, action: np.ndarray) -> EgoCommand:
-        """Normalised action (2,) -> physical `EgoCommand`: clipped to [-1, 1]; NaN or inf raise ValueError."""
+    def command(self, action: Any) -> EgoCommand:
+        """An action -> physical `EgoCommand` (`simharness.envs.actions`); ValueError for NaN, inf or a bad index."""
         return action_to_command(action, self.config, type(self).__name__)
 
     def render(self) -> np.ndarray | None:
-        if self.render_mode != "rgb_array":
+        """rgb_array: (H, W, 3) uint8 top-down view around the ego (`simharness.envs.render`); human: shown in a
+        window; None without a render mode."""
+        if self.render_mode is None:
             return None
-        if self._sim is not None and hasattr(self._sim, "render"):
-            return self._sim.render()
         from simharness.envs.render import render_frame
 
-        return render_frame(self._history.now, self._sim.road if self._sim is not None else None)
+        img = render_frame(self._history.now, self._sim.road if self._sim is not None else None,
+                           title=f"{getattr(self.spec, 'id', None) or type(self).__name__}  "
+                                 f"t = {self._steps * self.spec_.dt:.1f} s")
+        if self.render_mode == "rgb_array":
+            return img
+        import matplotlib.pyplot as plt
+
+        if self._window is None:
+            self._window = plt.imshow(img)
+            plt.axis("off")
+        else:
+            self._window.set_data(img)
+        plt.pause(1.0 / self.metadata["render_fps"])
+        return None
 
     def close(self) -> None:
         if self._sim is not None:
@@ -172,53 +215,39 @@ class DenseTrafficEnv(gym.Env):
         self._done = True
 
     # ------------------------------------------------------------------ pieces
-    def _info(self, ttc: float, gap: float) -> dict[str, Any]:
+    def _info(self, ttc: float, gap: float, on_road: bool = True) -> dict[str, Any]:
         f = self._history.now
         return {"t": float(f.t), "speed": float(f.speed[f.ego]) if f.ego >= 0 else 0.0,
                 "progress_m": float(self._progress), "collided": bool(self._collisions > 0),
-                "collisions": int(self._collisions), "min_ttc": float(min(ttc, TTC_CAP)),
-                "min_gap": float(min(gap, GAP_CAP))}
+                "collisions": int(self._collisions), "at_fault_collisions": int(self._at_fault),
+                "on_road": bool(on_road), "min_ttc": float(min(ttc, TTC_CAP)), "min_gap": float(min(gap, GAP_CAP))}
 
-    def _observation(self, d: np.ndarray | None = None) -> Any:
-        """The observation now; d (n,) m: the current frame's distances to the ego (`ego_offsets`), if known."""
+    def _observation(self, d: np.ndarray | None = None) -> tuple[Any, np.ndarray]:
+        """(The observation now, the rows of its neighbours in the current frame); d (n,) m: the current frame's
+        distances to the ego (`ego_offsets`), if known."""
         c = self.config
         k, h, rng = int(c["num_agents"]), int(c["history_frames"]), float(c["obs_range"])
         obs, near = agents_observation(self._history, k, h, rng, d)
+        if c["flatten"]:
+            obs = obs.reshape(-1)
         if not c["predictor"]:
-            return obs
-        return {"agents": obs, "forecast": self._forecast(self._history.now, near)}
-
-    def _forecast(self, frame: Frame, near: np.ndarray) -> np.ndarray:
-        """(K, Ff, 3): present, x / range, y / range of each observed neighbour's forecast, ego frame now."""
-        c = self.config
-        k, ff, rng = int(c["num_agents"]), int(c["forecast_frames"]), float(c["obs_range"])
-        fc = np.zeros((k, ff, 3), np.float32)
-        if frame.ego < 0 or near.size == 0 or self._predictor is None:
-            return fc
-        scene = scene_from_frames(self._history.frames, self.spec_.dt)
-        order = np.argsort(scene.agent_id, kind="stable")
-        targets = order[np.searchsorted(scene.agent_id[order], frame.agent_id[near])]  # scene rows of the neighbours
-        forecast = self._predictor.predict(scene, targets, ff)
-        p0, rot, _ = ego_rotation(frame)
-        rel = (forecast.mean[:, :ff] - p0) @ rot.T / rng
-        fc[: near.size, : rel.shape[1], 0] = 1.0
-        fc[: near.size, : rel.shape[1], 1:] = np.clip(rel, -1.0, 1.0)
-        return fc
+            return obs, near
+        fc = forecast_observation(self._history, near, self._predictor, k, int(c["forecast_frames"]), rng,
+                                  self.spec_.dt)
+        return {"agents": obs, "forecast": fc.reshape(-1) if c["flatten"] else fc}, near
 
 
-def action_to_command(action: np.ndarray, config: dict[str, Any], where: str = "env") -> EgoCommand:
-    """Normalised action (2,) -> `EgoCommand` (m/s^2, m/s) under `config`'s limits; see the package doc."""
-    a = np.asarray(action, np.float64)
-    if a.size != 2:
-        raise ValueError(f"{where}: action of shape {a.shape}: expected 2 values (acceleration, lateral speed) "
-                         "in [-1, 1]")
-    acc, lat = a.ravel().tolist()  # Python floats: numpy's float64 values, without its per-scalar overhead
-    if not (math.isfinite(acc) and math.isfinite(lat)):
-        raise ValueError(f"{where}: action {[acc, lat]} is not finite; expected 2 values in [-1, 1] (larger "
-                         "values are clipped, NaN and inf are refused)")
-    acc, lat = min(max(acc, -1.0), 1.0), min(max(lat, -1.0), 1.0)
-    acc = acc * (config["max_accel"] if acc >= 0 else config["max_decel"])
-    return EgoCommand(float(acc), float(lat * config["max_lateral_speed"]))
+def observation_space(config: dict[str, Any]) -> spaces.Space:
+    """The env's observation space under `config` (the package docstring): a Box, or a Dict with "forecast"."""
+    k, h = int(config["num_agents"]), int(config["history_frames"])
+    shape = (k + 1, h, FEATURES)
+    fshape = (k, int(config["forecast_frames"]), 3)
+    if config["flatten"]:
+        shape, fshape = (int(np.prod(shape)),), (int(np.prod(fshape)),)
+    agents = spaces.Box(-1.0, 1.0, shape, np.float32)
+    if not config["predictor"]:
+        return agents
+    return spaces.Dict({"agents": agents, "forecast": spaces.Box(-1.0, 1.0, fshape, np.float32)})
 
 
 class SumoDenseEnv(DenseTrafficEnv):

@@ -17,8 +17,8 @@ from typing import Any
 import numpy as np
 from numba import njit
 
-from simharness.scene import AgentType
-from simharness.sim.base import Frame
+from simharness.scene import AgentType, Predictor
+from simharness.sim.base import Frame, scene_from_frames
 
 FEATURES = 9 + len(AgentType)
 SPEED_SCALE = 30.0  # m/s
@@ -137,6 +137,25 @@ def agents_observation(history: History, k: int, h: int, obs_range: float, d: np
     _fill(obs, (xy - p0) @ rot.T / obs_range, speed, np.cos(dh), np.sin(dh), present, rows, frame.length,
           frame.width, frame.agent_type)
     return obs, near
+
+
+def forecast_observation(history: History, near: np.ndarray, predictor: Predictor, k: int, ff: int,
+                         obs_range: float, dt: float) -> np.ndarray:
+    """(K, Ff, 3) float32: present, x / range, y / range of each observed neighbour's forecast (rows `near` of
+    the newest frame, in observation order) over Ff frames, in the ego's frame now; zeros where none."""
+    fc = np.zeros((k, ff, 3), np.float32)
+    frame = history.now
+    if frame.ego < 0 or near.size == 0:
+        return fc
+    scene = scene_from_frames(history.frames, dt)
+    order = np.argsort(scene.agent_id, kind="stable")
+    targets = order[np.searchsorted(scene.agent_id[order], frame.agent_id[near])]  # scene rows of the neighbours
+    forecast = predictor.predict(scene, targets, ff)
+    p0, rot, _ = ego_rotation(frame)
+    rel = (forecast.mean[:, :ff] - p0) @ rot.T / obs_range
+    fc[: near.size, : rel.shape[1], 0] = 1.0
+    fc[: near.size, : rel.shape[1], 1:] = np.clip(rel, -1.0, 1.0)
+    return fc
 
 
 @njit(cache=True)

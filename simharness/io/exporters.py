@@ -77,10 +77,11 @@ def export_tracknpred(dataset_dir: Path, out: Path) -> Path:
 
     Scene i of the data set (in manifest order) becomes dataset id i + 1. Refuses a non-empty `out`.
     """
+    from simharness.io.folders import prepare_output
     from simharness.io.parquet import Dataset, atomic_folder
 
+    out = prepare_output(Path(out), force=True)  # never inside a data set (non-empty: atomic_folder refuses)
     data = Dataset(Path(dataset_dir))
-    out = Path(out)
     with atomic_folder(out) as tmp:
         index = io.StringIO()
         table = csv.writer(index, lineterminator="\n")

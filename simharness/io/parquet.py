@@ -16,6 +16,11 @@ identical bytes (no timestamps, hostnames or wall times anywhere). Files that ar
 `_` (`_manifest.json`, `_runs.jsonl`, `_lock`) or `.tmp-`, names pandas, pyarrow, polars and DuckDB skip,
 so any of them opens the folder as one table. The manifest lists each shard's size and sha256: opening a
 data set checks both, so a shard damaged, truncated or replaced after it was written is named, never used.
+Shards also vouch for themselves: every Parquet page carries a CRC32 checksum, the `simharness` metadata
+is checked against its schema and size bounds before anything is allocated, and the rows must fit it, so a
+writer judges a shard damaged by its own bytes (`shard_damage`), never by a manifest that may be the one
+that changed. Column units and meanings travel as Arrow field metadata (`unit`, `description`); the
+schema is documented column by column in docs/dataset.md.
 """
 
 from __future__ import annotations
@@ -24,6 +29,7 @@ import contextlib
 import hashlib
 import importlib.metadata
 import json
+import math
 import os
 import platform
 import shutil
@@ -37,6 +43,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from simharness.errors import UserError
+from simharness.io.folders import TMP_PREFIX, check_writable, clean_stale_temp, dir_mode, file_mode
 from simharness.scene import LABELS, AgentType, Scene, agent_types_from_labels
 from simharness.sim.base import RoadGeometry
 
@@ -44,10 +51,34 @@ SCHEMA_VERSION: int = 1
 MANIFEST = "_manifest.json"
 LEGACY_MANIFEST = "manifest.json"  # written before 0.1.1 (a name readers took for a shard); still read
 META_KEY = b"simharness"
-TMP_PREFIX = ".tmp-"
 BASE_COLUMNS = ("scene_id", "frame", "t", "agent_id", "agent_type", "x", "y", "heading", "speed",
                 "length", "width", "is_ego")
 _TYPE_DICT = pa.array(LABELS, pa.string())
+MAX_CELLS = 100_000_000  # agents x frames of one shard: each dense float32 array of it is at most 400 MB
+MAX_MANIFEST_BYTES = 512 << 20  # about 1.5 million scenes' entries
+MAX_META_BYTES = 256 << 20  # a shard's `simharness` metadata (road geometry, events) is far smaller
+T_DECIMALS = 9  # `t` = frame x dt rounded to the nanosecond: 0.6, not 0.6000000000000001
+# (unit, description) of every base column, stored as Arrow field metadata; docs/dataset.md says the same.
+COLUMN_DOCS: dict[str, tuple[str, str]] = {
+    "scene_id": ("", "the scene this row belongs to: the shard's file name without .parquet"),
+    "frame": ("frame", "frame index in the scene's recording; the first recorded frame is frame0"),
+    "t": ("s", "time of the frame: frame x dt, rounded to 1 ns"),
+    "agent_id": ("", "agent identifier, stable within the scene"),
+    "agent_type": ("", "car, bus, truck, rickshaw, motorcycle, scooter, bicycle, pedestrian or other"),
+    "x": ("m", "footprint centre, world frame"),
+    "y": ("m", "footprint centre, world frame; +y is 90 degrees counter-clockwise from +x"),
+    "heading": ("rad", "direction of the agent's body, counter-clockwise from +x"),
+    "speed": ("m/s", "speed along the heading"),
+    "length": ("m", "footprint length (one value per agent)"),
+    "width": ("m", "footprint width (one value per agent)"),
+    "is_ego": ("", "true on the rows of the scene's ego agent (closed-loop episodes), else false"),
+}
+EXTRA_DOCS: dict[str, tuple[str, str]] = {
+    "lateral_offset": ("m", "distance from the carriageway's centre line, positive to the left; on highway-env "
+                            "data it equals y"),
+    "sim_heading": ("rad", "the simulator's own box heading (SUMO aligns it with the lane), the one its collision "
+                           "check uses"),
+}
 
 
 # ---------------------------------------------------------------------- small file helpers
@@ -71,9 +102,10 @@ def dumps(obj: Any, indent: int | None = None) -> str:
 def atomic_write_bytes(path: Path, data: bytes) -> None:
     """Write to a temporary sibling, fsync, rename: readers never see half a file."""
     path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=TMP_PREFIX + path.name + ".", dir=path.parent)
+    # The pid in the name tells a later run whether the writer is gone (`folders.clean_stale_temp`).
+    fd, tmp = tempfile.mkstemp(prefix=f"{TMP_PREFIX}{path.name}.{os.getpid()}.", dir=path.parent)
     try:
-        os.fchmod(fd, 0o644)  # mkstemp makes 0600; data sets are meant to be shared
+        os.fchmod(fd, file_mode())  # mkstemp makes 0600; data sets are meant to be shared (0644 by umask)
         with os.fdopen(fd, "wb") as f:
             f.write(data)
             f.flush()
@@ -98,10 +130,17 @@ def atomic_folder(out: Path, overwrite: bool = False) -> Iterator[Path]:
     new folder is complete; on any error the temporary folder is removed and `out` is left as it was.
     """
     out = Path(out)
+    check_writable(out)
     if out.exists() and (not out.is_dir() or any(out.iterdir())) and not overwrite:
         raise UserError(f"{out}: exists and is not empty; choose another output folder or remove it")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=TMP_PREFIX + out.name + ".", dir=out.parent))
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True, mode=dir_mode())
+        clean_stale_siblings(out)
+        # The pid in the name tells the next run whether the writer is gone (its folder then removed).
+        tmp = Path(tempfile.mkdtemp(prefix=f"{TMP_PREFIX}{out.name}.{os.getpid()}.", dir=out.parent))
+        os.chmod(tmp, dir_mode())  # mkdtemp makes 0700
+    except OSError as e:
+        raise UserError(f"{out}: cannot create the output folder ({e.strerror or e})") from None
     try:
         yield tmp
         if out.exists():
@@ -115,6 +154,18 @@ def atomic_folder(out: Path, overwrite: bool = False) -> Iterator[Path]:
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+
+def clean_stale_siblings(out: Path) -> list[Path]:
+    """Remove what killed writers of `out` left beside it: `.tmp-{out.name}.{pid}.*` of dead processes (a killed
+    `import` or `export`) and `.tmp-{out.name}.old` (a replaced folder not yet deleted). Returns them."""
+    out = Path(out)
+    removed = clean_stale_temp(out.parent, f"{TMP_PREFIX}{out.name}.")
+    old = out.with_name(f"{TMP_PREFIX}{out.name}.old")
+    if old.is_dir() and not old.is_symlink():
+        shutil.rmtree(old, ignore_errors=True)
+        removed.append(old)
+    return removed
+
 
 def file_sha256(path: Path) -> str:
     h = hashlib.sha256()
@@ -151,7 +202,7 @@ def scene_table(scene: Scene, scene_id: str) -> pa.Table:
     columns: dict[str, pa.Array] = {
         "scene_id": pa.DictionaryArray.from_arrays(pa.array(np.zeros(n, np.int8)), pa.array([scene_id])),
         "frame": pa.array(frame),
-        "t": pa.array(frame.astype(np.float64) * scene.dt),
+        "t": pa.array(np.round(frame.astype(np.float64) * scene.dt, T_DECIMALS)),
         "agent_id": pa.array(scene.agent_id[row].astype(object), pa.string()),
         "agent_type": types,
         "x": pa.array(scene.xy[row, col, 0]),
@@ -180,8 +231,17 @@ def scene_table(scene: Scene, scene_id: str) -> pa.Table:
         "extra": sorted(scene.extra),
         "meta": scene.meta,
     }
-    table = pa.table(columns)
-    return table.replace_schema_metadata({META_KEY: dumps(info).encode()})
+    docs = {**COLUMN_DOCS, **EXTRA_DOCS}
+
+    def unit(name: str) -> str:  # lengths in the scene's own unit (px for unscaled video imports)
+        u = docs.get(name, ("", ""))[0]
+        return {"m": scene.units, "m/s": f"{scene.units}/s"}.get(u, u)
+
+    fields = [pa.field(name, arr.type, metadata={"unit": unit(name),
+                                                 "description": docs.get(name, ("", "extra per agent-frame value"))[1]})
+              for name, arr in columns.items()]
+    schema = pa.schema(fields, metadata={META_KEY: dumps(info).encode()})
+    return pa.Table.from_arrays(list(columns.values()), schema=schema)
 
 
 def write_scene(scene: Scene, path: Path, scene_id: str) -> int:
@@ -190,23 +250,99 @@ def write_scene(scene: Scene, path: Path, scene_id: str) -> int:
     table = scene_table(scene, scene_id)
     sink = pa.BufferOutputStream()
     # zstd for size; no statistics-dependent wall clock anywhere, so bytes depend on content only.
+    # Page checksums (CRC32): a shard shows damage by its own bytes, whatever a manifest says.
     pq.write_table(table, sink, compression="zstd", row_group_size=1 << 20, use_dictionary=["scene_id",
-                   "agent_type", "agent_id"])
+                   "agent_type", "agent_id"], write_page_checksum=True)
     atomic_write_bytes(path, sink.getvalue().to_pybytes())
     return table.num_rows
 
 
 def _shard_info(path: Path) -> dict[str, Any]:
+    """The shard's `simharness` metadata, checked against its schema and bounds (`check_shard_info`)."""
     try:
         kv = pq.read_schema(path).metadata or {}
     except (OSError, pa.ArrowException) as e:
         raise UserError(f"{path}: corrupt or unreadable Parquet shard ({_short(e)})") from None
     if META_KEY not in kv:
         raise UserError(f"{path}: not a simharness shard (no '{META_KEY.decode()}' key-value metadata)")
-    info = json.loads(kv[META_KEY])
+    if len(kv[META_KEY]) > MAX_META_BYTES:
+        raise UserError(f"{path}: shard metadata '{META_KEY.decode()}' is {len(kv[META_KEY]):,} bytes; at most "
+                        f"{MAX_META_BYTES:,} expected")
+    try:
+        info = json.loads(kv[META_KEY])
+    except (ValueError, RecursionError) as e:
+        raise UserError(f"{path}: shard metadata '{META_KEY.decode()}' is not valid JSON ({_short(e)})") from None
+    return check_shard_info(info, path)
+
+
+def _bad(path: Path, field: str, expected: str, got: Any) -> UserError:
+    text = repr(got)
+    return UserError(f"{path}: field {field!r}: expected {expected}, got {text[:60]}{'...' if len(text) > 60 else ''}")
+
+
+def _int(d: dict[str, Any], key: str, path: Path, lo: int, hi: int, field: str | None = None) -> int:
+    v = d.get(key)
+    if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
+        raise _bad(path, field or key, f"a whole number in {lo}..{hi}", v)
+    return v
+
+
+def _number(v: Any, path: Path, field: str, lo: float, hi: float, lo_open: bool = False) -> float:
+    ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and lo <= v <= hi \
+        and not (lo_open and v == lo)
+    if not ok:
+        raise _bad(path, field, f"a finite number in {'(' if lo_open else '['}{lo:g}, {hi:g}]", v)
+    return float(v)
+
+
+def check_shard_info(info: Any, path: Path) -> dict[str, Any]:
+    """`info` if it is a shard's metadata of the expected schema within the size bounds, else one UserError
+    naming the field: checked before any array of its sizes is allocated."""
+    if not isinstance(info, dict):
+        raise _bad(path, META_KEY.decode(), "a JSON object", type(info).__name__)
     if info.get("schema_version") != SCHEMA_VERSION:
         raise UserError(f"{path}: shard schema version {info.get('schema_version')!r}; this simharness reads "
                         f"version {SCHEMA_VERSION}")
+    if not isinstance(info.get("scene_id"), str):
+        raise _bad(path, "scene_id", "a string", info.get("scene_id"))
+    _number(info.get("dt"), path, "dt", 0.0, 3600.0, lo_open=True)
+    _int(info, "frame0", path, 0, 2**31 - 1)
+    t = _int(info, "num_frames", path, 0, MAX_CELLS)
+    agents = info.get("agents")
+    if not isinstance(agents, dict):
+        raise _bad(path, "agents", "an object of agent_id, agent_type, length, width lists", agents)
+    for key in ("agent_id", "agent_type", "length", "width"):
+        if not isinstance(agents.get(key), list):
+            raise _bad(path, f"agents.{key}", "a list", agents.get(key))
+    n = len(agents["agent_id"])
+    if n * max(t, 1) > MAX_CELLS:
+        raise UserError(f"{path}: fields 'agents' x 'num_frames' = {n:,} x {t:,}; at most {MAX_CELLS:,} "
+                        "agent-frames per shard")
+    for key in ("agent_type", "length", "width"):
+        if len(agents[key]) != n:
+            raise _bad(path, f"agents.{key}", f"{n} entries (one per agent_id)", f"{len(agents[key])} entries")
+    if not all(isinstance(a, str) for a in agents["agent_id"]) or len(set(agents["agent_id"])) != n:
+        raise _bad(path, "agents.agent_id", "distinct strings", "other values")
+    unknown = next((a for a in agents["agent_type"] if a not in LABELS), None)
+    if unknown is not None:
+        raise _bad(path, "agents.agent_type", f"labels among {', '.join(LABELS)}", unknown)
+    for key in ("length", "width"):
+        for v in agents[key]:
+            _number(v, path, f"agents.{key}", 0.0, 1e4)
+    _int(info, "ego", path, -1, n - 1)
+    extra = info.get("extra")
+    if not isinstance(extra, list) or not all(isinstance(k, str) and k not in BASE_COLUMNS for k in extra):
+        raise _bad(path, "extra", "a list of column names", extra)
+    meta = info.get("meta")
+    if not isinstance(meta, dict):
+        raise _bad(path, "meta", "a JSON object", meta)
+    if not isinstance(meta.get("events", []), list) or not all(isinstance(e, dict) for e in meta.get("events", [])):
+        raise _bad(path, "meta.events", "a list of event objects", meta.get("events"))
+    if not isinstance(meta.get("units", "m"), str):
+        raise _bad(path, "meta.units", "a string such as m or px", meta.get("units"))
+    if "units_per_m" in meta:
+        _number(meta["units_per_m"], path, "meta.units_per_m", 0.0, 1e6, lo_open=True)
+    check_road(meta.get("road"), path)
     return info
 
 
@@ -219,13 +355,20 @@ def read_scene(path: Path) -> Scene:
     path = Path(path)
     info = _shard_info(path)
     try:
-        table = pq.read_table(path)
+        table = pq.read_table(path, page_checksum_verification=True)
     except (OSError, pa.ArrowException) as e:
         raise UserError(f"{path}: corrupt or unreadable Parquet shard ({_short(e)})") from None
     agents = info["agents"]
     ids = np.asarray(agents["agent_id"], dtype=object).astype(str)
     n, t = len(ids), int(info["num_frames"])
     try:
+        missing = [c for c in ("agent_id", "frame", "x", "y", "heading", "speed", *info["extra"])
+                   if c not in table.column_names]
+        if missing:
+            raise ValueError(f"column {missing[0]!r} missing")
+        for c in ("x", "y", "heading", "speed"):
+            if not np.isfinite(table.column(c).to_numpy()).all():
+                raise ValueError(f"column {c!r} holds NaN or infinity")
         row_ids = table.column("agent_id").to_numpy(zero_copy_only=False).astype(str)
         if len(row_ids) and n == 0:
             raise ValueError("rows but an empty agent table")
@@ -234,6 +377,8 @@ def read_scene(path: Path) -> Scene:
         col = table.column("frame").to_numpy().astype(np.int64) - int(info["frame0"])
         if len(row_ids) and ((ids[row] != row_ids).any() or col.min() < 0 or col.max() >= t):
             raise ValueError("rows do not match the shard's agent table")
+        if len(row_ids) and np.unique(row * max(t, 1) + col).size != len(row_ids):
+            raise ValueError("two rows for one agent-frame")
 
         def dense(name: str) -> np.ndarray:
             out = np.zeros((n, t), np.float32)
@@ -250,8 +395,25 @@ def read_scene(path: Path) -> Scene:
             dt=float(info["dt"]), ego=int(info["ego"]), frame0=int(info["frame0"]),
             extra={k: dense(k) for k in info["extra"]}, meta=info["meta"],
         )
-    except (KeyError, IndexError, ValueError, pa.ArrowException) as e:
+    except (KeyError, IndexError, ValueError, TypeError, pa.ArrowException) as e:
         raise UserError(f"{path}: corrupt shard ({_short(e)})") from None
+
+
+def shard_damage(path: Path) -> str | None:
+    """Why the shard's own bytes show it damaged (unreadable footer, a page failing its checksum, metadata
+    outside its schema, rows that do not fit it, a scene id other than its file name), or None if intact.
+
+    Reads the whole shard. A shard is removed only on this word, never because a manifest disagrees.
+    """
+    path = Path(path)
+    try:
+        scene = read_scene(path)
+    except UserError as e:
+        text = str(e)
+        return text[len(str(path)) + 2:] if text.startswith(f"{path}: ") else text
+    if scene.meta.get("scene_id", path.stem) != path.stem or _shard_info(path)["scene_id"] != path.stem:
+        return f"holds scene {_shard_info(path)['scene_id']!r}, not the one its file name says"
+    return None
 
 
 # ---------------------------------------------------------------------- manifest
@@ -339,9 +501,13 @@ def manifest_path(folder: Path) -> Path:
 
 
 def clean_temp_files(out: Path) -> list[Path]:
-    """Remove leftovers of interrupted writes (files named `.tmp-*`); returns what was removed."""
+    """Remove leftovers of interrupted writes (`.tmp-*` files, and folders, in `out`; links are removed, never
+    followed); returns what was removed. Only for a folder whose writer lock is held."""
     stale = sorted(Path(out).glob(TMP_PREFIX + "*"))
     for p in stale:
+        if p.is_dir() and not p.is_symlink():
+            shutil.rmtree(p, ignore_errors=True)
+            continue
         with contextlib.suppress(OSError):
             p.unlink()
     return stale
@@ -381,23 +547,76 @@ def read_manifest(path: Path) -> dict[str, Any]:
     if not mpath.is_file():
         raise UserError(f"{mpath}: missing; expected a simharness data set folder (run `simharness generate` "
                         f"or `simharness import` to make one)")
+    size = mpath.stat().st_size
+    if size > MAX_MANIFEST_BYTES:
+        raise UserError(f"{mpath}: {size:,} bytes; a manifest is at most {MAX_MANIFEST_BYTES:,}")
     try:
         manifest = json.loads(mpath.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise UserError(f"{mpath}: not valid JSON ({e})") from None
+    except (ValueError, RecursionError) as e:  # JSONDecodeError and UnicodeDecodeError are ValueErrors
+        raise UserError(f"{mpath}: not valid JSON ({_short(e)})") from None
+    return check_manifest(manifest, mpath)
+
+
+def check_manifest(manifest: Any, mpath: Path) -> dict[str, Any]:
+    """`manifest` if it has the schema `build_manifest` writes, else one UserError naming the field."""
     if not isinstance(manifest, dict) or manifest.get("format") != "simharness-dataset":
         raise UserError(f"{mpath}: not a simharness data set manifest (key 'format' != 'simharness-dataset')")
     if manifest.get("schema_version") != SCHEMA_VERSION:
         raise UserError(f"{mpath}: key 'schema_version' is {manifest.get('schema_version')!r}; this simharness "
                         f"reads version {SCHEMA_VERSION}")
+    for key in ("info", "versions"):
+        if not isinstance(manifest.get(key, {}), dict):
+            raise _bad(mpath, key, "a JSON object", manifest.get(key))
+    for key in ("num_scenes", "rows"):
+        if key in manifest:
+            _int(manifest, key, mpath, 0, 2**63 - 1)
     scenes = manifest.get("scenes", [])
     if not isinstance(scenes, list) or not all(isinstance(e, dict) and isinstance(e.get("file"), str)
                                                and isinstance(e.get("scene_id"), str) for e in scenes):
         raise UserError(f"{mpath}: key 'scenes' must be a list of {{scene_id, file, ...}} entries")
-    bad = [e["file"] for e in scenes if Path(e["file"]).name != e["file"] or not e["file"].endswith(".parquet")]
+    bad = [e["file"] for e in scenes if Path(e["file"]).name != e["file"] or not e["file"].endswith(".parquet")
+           or e["file"].startswith((".", "_"))]
     if bad:
         raise UserError(f"{mpath}: shard {bad[0]!r} is not a .parquet file name inside the folder")
+    files = [e["file"] for e in scenes]
+    if len(set(files)) != len(files) or len({e["scene_id"] for e in scenes}) != len(scenes):
+        raise UserError(f"{mpath}: key 'scenes' lists a shard or scene id twice")
+    for i, e in enumerate(scenes):
+        for key, hi in (("rows", 2**63 - 1), ("agents", MAX_CELLS), ("frames", MAX_CELLS), ("bytes", 2**63 - 1)):
+            if key in e or key == "rows":
+                _int(e, key, mpath, 0, hi, field=f"scenes[{i}].{key}")
+        sha = e.get("sha256")
+        if "sha256" in e and not (isinstance(sha, str) and len(sha) == 64
+                                  and all(c in "0123456789abcdef" for c in sha)):
+            raise _bad(mpath, f"scenes[{i}].sha256", "64 lowercase hex digits", sha)
     return manifest
+
+
+MAX_ROAD_POINTS = 1_000_000  # vertices of all road polygons of a data set
+
+
+def check_road(road: Any, path: Path) -> Any:
+    """`road` if it is road geometry as `RoadGeometry.to_dict` writes it ({drivable, sidewalks, markings}: lists
+    of polygons of finite [x, y] points, at most MAX_ROAD_POINTS in all), else one UserError naming the field."""
+    if not road:
+        return road
+    if not isinstance(road, dict) or set(road) - {"drivable", "sidewalks", "markings"}:
+        raise _bad(path, "road", "an object of drivable, sidewalks, markings polygons", road)
+    total = 0
+    for key, polygons in road.items():
+        if not isinstance(polygons, list):
+            raise _bad(path, f"road.{key}", "a list of polygons", polygons)
+        for i, poly in enumerate(polygons):
+            ok = isinstance(poly, list) and len(poly) >= 1 and all(
+                isinstance(pt, list) and len(pt) == 2 and all(
+                    isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in pt)
+                for pt in poly)
+            if not ok:
+                raise _bad(path, f"road.{key}[{i}]", "a list of finite [x, y] points", poly)
+            total += len(poly)
+    if total > MAX_ROAD_POINTS:
+        raise UserError(f"{path}: field 'road': {total:,} points; at most {MAX_ROAD_POINTS:,}")
+    return road
 
 
 # ---------------------------------------------------------------------- read side
@@ -421,6 +640,10 @@ class Dataset:
             problem = shard_problem(shard, entry, hash_it=verify)
             if problem == "missing":
                 raise UserError(f"{shard}: shard listed in {mname} is missing")
+            if problem and shard_damage(shard) is None:  # the entry is what changed
+                raise UserError(f"{shard}: {problem.split(' (')[0]}, yet the shard reads intact (page checksums, "
+                                f"metadata, rows): the {mname} entry is wrong; rerun the `simharness generate` "
+                                "command that made the data set to repair it, or re-import it")
             if problem:
                 raise UserError(f"{shard}: damaged shard: {problem}; regenerate or re-import the data set")
         listed = {e["file"] for e in entries}
@@ -442,10 +665,10 @@ class Dataset:
         """Road geometry from the first shard's meta (shared by all scenes of a scenario), or None."""
         if not self._road_read:
             self._road_read = True
-            road = self.info.get("road")
+            road, where = self.info.get("road"), manifest_path(self.path)
             if road is None and self.shard_paths:
-                road = _shard_info(self.shard_paths[0])["meta"].get("road")
-            self._road = RoadGeometry.from_dict(road) if road else None
+                road, where = _shard_info(self.shard_paths[0])["meta"].get("road"), self.shard_paths[0]
+            self._road = RoadGeometry.from_dict(check_road(road, where)) if road else None
         return self._road
 
     def __len__(self) -> int:

@@ -12,7 +12,7 @@ def make_simulator(spec: ScenarioSpec, process: bool = False) -> Simulator:
     """The backend the scenario names; imported lazily so one backend's deps never load the other.
 
     process: for sumo, run libsumo in a worker process (`SumoProcess`: any number per process, and
-    `branch()`); the highway backend is plain Python and always runs in this process.
+    `branch()`); the highway and replay backends are plain Python and always run in this process.
     """
     if spec.backend == "sumo" and process:
         from simharness.sim.sumo.process import SumoProcess
@@ -26,4 +26,8 @@ def make_simulator(spec: ScenarioSpec, process: bool = False) -> Simulator:
         from simharness.sim.highway.simulator import HighwaySimulator
 
         return HighwaySimulator(spec)
+    if spec.backend == "replay":
+        from simharness.sim.replay.simulator import ReplaySimulator
+
+        return ReplaySimulator(spec)
     raise ValueError(f"unknown backend {spec.backend!r}")  # the scenario loader already checked

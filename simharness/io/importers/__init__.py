@@ -112,8 +112,10 @@ def import_command(args: argparse.Namespace) -> int:
     """`simharness import FORMAT SRC... --out DIR [--allow-pickle]`: write a data set, print a summary."""
     from tqdm import tqdm
 
+    from simharness.io.folders import prepare_output
     from simharness.io.parquet import write_dataset
 
+    prepare_output(args.out, force=True)  # before reading any source: never inside a data set (non-empty: below)
     fmt = format_name(args.format)
     options = traf_options(args)
     if options and fmt != "traf":

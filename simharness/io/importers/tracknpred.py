@@ -28,9 +28,30 @@ PICKLE_REFUSAL = ("{path}: a pickled NumPy object array: loading it can run arbi
                   "import the .txt beside it, or pass --allow-pickle if you trust this file")
 
 
+def _check_npy_header(path: Path) -> None:
+    """UserError unless the .npy header's shape and dtype fit the bytes that follow it: checked before NumPy
+    allocates the array a crafted header declares (e.g. 34 TiB for a small file)."""
+    try:
+        with open(path, "rb") as f:
+            version = np.lib.format.read_magic(f)
+            read = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+            shape, _, dtype = read(f)
+            data_bytes = path.stat().st_size - f.tell()
+    except (ValueError, OSError, SyntaxError, TypeError) as e:
+        raise UserError(f"{path}: not a readable .npy file ({str(e).splitlines()[0][:120] if str(e) else e})") \
+            from None
+    if dtype.hasobject:
+        return  # a pickle: refused below unless the user trusts it
+    need = int(np.prod(shape, dtype=object)) * dtype.itemsize
+    if len(shape) > 2 or need > data_bytes:
+        raise UserError(f"{path}: header declares an array of shape {shape} and dtype {dtype} ({need:,} bytes); "
+                        f"the file holds {data_bytes:,} bytes of data: truncated or crafted")
+
+
 def _tracknpred_rows(path: Path, allow_pickle: bool) -> tuple[np.ndarray, np.ndarray]:
     """(values (R, 5): dataset, id, frame, x, y; line or row numbers (R,)) from any TrackNPred file."""
     if path.suffix == ".npy":
+        _check_npy_header(path)
         try:
             data = np.load(path, allow_pickle=False)
         except ValueError as e:

@@ -8,7 +8,7 @@ the text before "__". Pedestrians are sub-lane vehicles of type "pedestrian__*" 
 
 from __future__ import annotations
 
-from simharness.scenario import ScenarioSpec
+from simharness.scenario import EVENT_ACTORS, ScenarioSpec
 from simharness.scene import DEFAULT_FOOTPRINT, AgentType
 from simharness.sim.sumo.net import Network
 
@@ -50,7 +50,7 @@ def _vtype(t: AgentType, level: int, spec: ScenarioSpec, vid: str | None = None)
         "minGapLat": f"{spec.sublane.min_gap_lat * (1 - 0.3 * u):.2f}",
         "lcStrategic": "1.0", "lcCooperative": f"{0.8 - 0.3 * u:.2f}", "lcSpeedGain": f"{1.0 + 0.5 * u:.2f}",
         "lcKeepRight": "0", "lcOvertakeRight": "1", "lcLaneDiscipline": f"{spec.sublane.lane_discipline:.2f}",
-        # Filtering without pushing: lcPushy > 0 collided with marked lanes (issue #2 measurements).
+        # Filtering without pushing: lcPushy > 0 collided with marked lanes (measured).
         "lcPushy": "0", "lcAssertive": "1", "lcSigma": "0", "lcImpatience": "0",
         "lcSublane": f"{1.0 + 0.5 * u:.2f}",
         # Move to the side of a coming turn: right- and left-turners from one approach do not cross in a junction.
@@ -91,7 +91,9 @@ def routes_xml(spec: ScenarioSpec, net: Network, end: float) -> str:
     flows = {t: v for t, v in spec.flows().items() if v > 0}
     walking = spec.pedestrians.walking_rate * spec.demand_scale
     crossing = spec.pedestrians.crossing_rate * spec.demand_scale
-    types = sorted(set(flows) | ({AgentType.PEDESTRIAN} if walking + crossing > 0 else set()))
+    actors = {AgentType.parse(e.actor or EVENT_ACTORS[e.kind]) for e in spec.events}  # scripted: events.py
+    actors |= {AgentType.BUS for e in spec.events if e.kind == "step_out"}
+    types = sorted(set(flows) | ({AgentType.PEDESTRIAN} if walking + crossing > 0 else set()) | actors)
     lines = ["<routes>", vtypes_xml(spec, types)]
     if spec.ego.enabled:
         lines.append(ego_vtype_xml(spec))

@@ -1,7 +1,7 @@
 """Crossing pedestrians that sub-lane traffic sees: small standing vehicles the harness walks across.
 
 Why not SUMO's own pedestrians: on a shared carriageway or at unsignalised crossings, sub-lane
-vehicles judge crossing conflicts from the lane centre and hit them (issue #2: tens of collisions
+vehicles judge crossing conflicts from the lane centre and hit them (tens of collisions
 per 400 s). Here a crossing pedestrian is a SUMO vehicle of the "pedestrian" vType standing on the
 carriageway (speed 0), moved sideways by the harness at walking speed. Every vehicle's sub-lane
 model treats it as an obstacle in its lateral band, and the pedestrian steps into the next band

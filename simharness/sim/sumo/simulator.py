@@ -17,6 +17,7 @@ simulation (tests/test_sumo.py); the recorded path hands its read to the crossin
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import math
 import os
 import shutil
@@ -28,12 +29,13 @@ from xml.etree import ElementTree
 
 import numpy as np
 
-from simharness.errors import SimulatorError, UserError
+from simharness.errors import SimulatorError
 from simharness.scenario import ScenarioSpec
 from simharness.scene import DEFAULT_FOOTPRINT, AgentType
 from simharness.sim.base import EgoCommand, Event, Frame, RoadGeometry
 from simharness.sim.sumo.demand import KINEMATICS, routes_xml
 from simharness.sim.sumo.ego import GhostEgo, ego_start, free_lateral
+from simharness.sim.sumo.events import EgoPose, EventScript
 from simharness.sim.sumo.net import Network, build_network
 from simharness.sim.sumo.pedestrians import Crossings
 from simharness.sim.sumo.traffic import Traffic, VehicleTable, read_traffic, rear_of
@@ -57,9 +59,6 @@ class SumoSimulator:
     def __init__(self, spec: ScenarioSpec) -> None:
         if spec.backend != "sumo":
             raise ValueError(f"SumoSimulator needs a sumo scenario, got backend {spec.backend!r}")
-        if spec.events:
-            raise UserError(f"{spec.path or spec.name}: key 'events': scripted events run on the highway "
-                            "backend only; expected backend = \"highway\"")
         self.spec = spec
         self.dt = spec.dt
         self._folder = Path(tempfile.mkdtemp(prefix="simharness_sumo_"))
@@ -123,6 +122,7 @@ class SumoSimulator:
         self._ghost: GhostEgo | None = None
         self._ego_due = self.spec.ego.enabled
         self._ego_from = self.spec.warmup  # SUMO time (s) from which insert_at counts; restart_ego moves it
+        self._script = self._event_script()
         warm_steps = int(round(self.spec.warmup / self.spec.step_length))
         self._advance(warm_steps, recording=False)
         self._events.clear()
@@ -156,6 +156,7 @@ class SumoSimulator:
         self._ego_lat_v = 0.0
         self._ego_due = True
         self._ego_from = float(libsumo.simulation.getTime())
+        self._script = self._event_script()
         self._contacts = {c for c in self._contacts if EGO_ID not in c}
         self._events.clear()
         self._t = 0.0
@@ -186,6 +187,40 @@ class SumoSimulator:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
+    # ------------------------------------------------------------------ scripted events
+    def _event_script(self) -> EventScript | None:
+        """The scenario's events, timed from the ego's start (a restarted ego gets them afresh)."""
+        old = getattr(self, "_script", None)
+        if old is not None:  # a restart: the last run's actors leave
+            for a in old.actors():
+                if a.vid in libsumo.vehicle.getIDList():
+                    libsumo.vehicle.remove(a.vid)
+        if not self.spec.events:
+            return None
+        cw, _ = ego_start(self.net)
+        two_way = self.spec.road.layout == "intersection" or self.spec.road.bidirectional
+        route = f"r_{cw.edge}" if f"r_{cw.edge}" in self.net.routes else \
+            next(r for r, e in self.net.routes.items() if e[0] == cw.edge)
+        return EventScript([dataclasses.asdict(e) for e in self.spec.events], cw, cw.width * (1.5 if two_way else 0.5),
+                           route, self._ego_from)
+
+    def _ego_pose(self) -> EgoPose | None:
+        """The ego now in the events' frame (front s, centre lat, length, speed), or None if it is absent."""
+        if self._script is None:
+            return None
+        if self._ghost is not None:
+            g = self._ghost.state()
+            centre, length, speed = np.asarray(g["xy"], float), float(g["length"]), float(self._ghost.v)
+        elif self._ego_in_sumo and EGO_ID in libsumo.vehicle.getIDList():
+            front = np.array(libsumo.vehicle.getPosition(EGO_ID), float)
+            a = math.radians(libsumo.vehicle.getAngle(EGO_ID))
+            length, speed = float(libsumo.vehicle.getLength(EGO_ID)), float(libsumo.vehicle.getSpeed(EGO_ID))
+            centre = front - 0.5 * length * np.array([math.sin(a), math.cos(a)])
+        else:
+            return None
+        s, lat = self._script.from_world(centre[None])
+        return float(s[0]) + 0.5 * length, float(lat[0]), length, speed
+
     # ------------------------------------------------------------------ stepping
     def _require_running(self) -> None:
         if not self._running:
@@ -213,6 +248,8 @@ class SumoSimulator:
             if self.spec.ego.enabled and (recording or self._ego_due):
                 self._control_ego(command, sl, frame_start)
             self._crossings.step(libsumo, sl, frame_start, self._traffic_now)
+            if self._script is not None:
+                self._script.step(libsumo, libsumo.simulation.getTime(), sl, self._ego_pose)
             try:
                 libsumo.simulationStep()
             except Exception as e:
@@ -380,6 +417,8 @@ class SumoSimulator:
         agent_id = self._table.public[rows]
         speed = speed.copy()  # the Traffic read keeps SUMO's own speeds
         self._crossings.override_motion(ids, heading, speed, self.dt)
+        if self._script is not None:
+            self._script.override(ids, xy, heading, sim_heading, speed, lateral)
         ego = -1
         if self._ghost is not None:
             if moved:

@@ -1,0 +1,61 @@
+"""The env's actions: a continuous Box or a discrete set of meta-actions, and their physical `EgoCommand`.
+
+Continuous (``config["action"] = "continuous"``): ``Box(-1, 1, (2,))``; ``a[0]`` longitudinal
+acceleration, ``a[0] * max_accel`` when positive and ``a[0] * max_decel`` when negative (m/s^2); ``a[1]``
+lateral velocity, ``a[1] * max_lateral_speed`` (m/s, + left). Clipped to [-1, 1]; NaN or inf refused.
+
+Discrete (``"discrete"``): ``Discrete(12)``, meta-actions for lane-less traffic, index = 3 * longitudinal +
+lateral over the `LONGITUDINAL` and `LATERAL` sets below (in the continuous action's units), e.g. 10 is
+"faster, straight", 7 "hold, straight" and 3 "slower, nudge left". Each is held for the next frame, like a
+continuous action.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+from gymnasium import spaces
+
+from simharness.sim.base import EgoCommand
+
+# name -> normalised a[0]: brake hard (-max_decel), ease off, hold speed, speed up
+LONGITUDINAL = {"brake": -1.0, "slower": -0.3, "hold": 0.0, "faster": 0.6}
+# name -> normalised a[1]: a nudge is half the lateral speed limit
+LATERAL = {"nudge left": 0.5, "straight": 0.0, "nudge right": -0.5}
+META_ACTIONS = [f"{lon}, {lat}" for lon in LONGITUDINAL for lat in LATERAL]  # index -> name
+DISCRETE_ACTIONS = np.array([[a, b] for a in LONGITUDINAL.values() for b in LATERAL.values()])  # (12, 2)
+
+
+def action_space(config: dict[str, Any]) -> spaces.Space:
+    """The env's action space under `config["action"]`."""
+    if config["action"] == "discrete":
+        return spaces.Discrete(len(DISCRETE_ACTIONS))
+    return spaces.Box(-1.0, 1.0, (2,), np.float32)
+
+
+def action_to_command(action: Any, config: dict[str, Any], where: str = "env") -> EgoCommand:
+    """An action (module docstring) -> `EgoCommand` (m/s^2, m/s) under `config`'s limits; ValueError for a
+    non-finite continuous action or a meta-action index out of range."""
+    a = np.asarray(action)
+    if config["action"] == "discrete":
+        last = len(DISCRETE_ACTIONS) - 1
+        if a.size != 1 or not (np.issubdtype(a.dtype, np.integer) or float(a.ravel()[0]).is_integer()):
+            raise ValueError(f"{where}: action {action!r}: expected one meta-action index in 0..{last}")
+        i = int(a.ravel()[0])
+        if not 0 <= i <= last:
+            raise ValueError(f"{where}: action {i}: expected a meta-action index in 0..{last}")
+        acc, lat = DISCRETE_ACTIONS[i].tolist()
+    else:
+        a = a.astype(np.float64)
+        if a.size != 2:
+            raise ValueError(f"{where}: action of shape {a.shape}: expected 2 values (acceleration, lateral speed) "
+                             "in [-1, 1]")
+        acc, lat = a.ravel().tolist()  # Python floats: numpy's float64 values, without its per-scalar overhead
+        if not (math.isfinite(acc) and math.isfinite(lat)):
+            raise ValueError(f"{where}: action {[acc, lat]} is not finite; expected 2 values in [-1, 1] (larger "
+                             "values are clipped, NaN and inf are refused)")
+        acc, lat = min(max(acc, -1.0), 1.0), min(max(lat, -1.0), 1.0)
+    acc = acc * (config["max_accel"] if acc >= 0 else config["max_decel"])
+    return EgoCommand(float(acc), float(lat * config["max_lateral_speed"]))

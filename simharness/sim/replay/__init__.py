@@ -1,0 +1,1 @@
+"""Replay backend: recorded data sets as scenarios, the log played back or reacting to the ego."""
