@@ -32,7 +32,7 @@ import dataclasses
 import numpy as np
 from numba import njit, types
 
-from simharness.planners import EgoLimits, rows_of
+from simharness.planners import EgoLimits, ego_axis, rows_of
 from simharness.scene import Forecast, Scene
 from simharness.sim.base import EgoCommand, RoadGeometry
 
@@ -145,12 +145,7 @@ class PDMPlanner:
             raise ValueError("PDMPlanner.plan needs a Scene with its ego row set")
         dt = forecast.dt if forecast is not None else now.dt
         frames = max(1, int(round(cfg.horizon_s / dt)))
-        p0 = now.xy[e, -1].astype(np.float64)
-        v0 = float(now.speed[e, -1])
-        if "sim_heading" in now.extra:  # backend's own body heading: aligned with the road, not the motion
-            h0 = float(now.extra["sim_heading"][e, -1])
-        else:
-            h0 = float(now.heading[e, -1]) - float(np.arctan2(self._vlat, max(v0, 1e-3)))
+        p0, h0, v0 = ego_axis(now, self._vlat)
         fwd, left = np.array([np.cos(h0), np.sin(h0)]), np.array([-np.sin(h0), np.cos(h0)])
         le, we = float(now.length[e]), float(now.width[e])
         lat0 = 0.0 if self._ref is None else float(np.clip((self._ref - p0) @ left, -3.0, 3.0))

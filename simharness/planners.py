@@ -105,17 +105,6 @@ class SamplingPlanner:
         self.last_rollout: np.ndarray | None = None  # (F, 2) chosen ego path, world frame
 
     # ------------------------------------------------------------------ rollout
-    def _axis(self, now: Scene) -> tuple[np.ndarray, float, float]:
-        """Ego position (2,), road-axis heading (rad) and speed (m/s) at the last column."""
-        e = now.ego
-        h = float(now.heading[e, -1])
-        v = float(now.speed[e, -1])
-        if "sim_heading" in now.extra:  # backend's own body heading: aligned with the road, not the motion
-            h = float(now.extra["sim_heading"][e, -1])
-        else:
-            h -= float(np.arctan2(self._prev_lat, max(v, 1e-3)))
-        return now.xy[e, -1].astype(np.float64), h, v
-
     def rollout(self, p0: np.ndarray, h0: float, v0: float, dt: float, frames: int
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Every candidate's future: xy (C, F, 2) world m, heading (C, F), speed (C, F), lateral speed (C,)."""
@@ -147,7 +136,7 @@ class SamplingPlanner:
         frames = max(1, int(round(cfg.horizon_s / dt)))
         if forecast is not None:
             frames = min(frames, forecast.horizon)
-        p0, h0, v0 = self._axis(now)
+        p0, h0, v0 = ego_axis(now, self._prev_lat)
         exy, eh, ev, vlat = self.rollout(p0, h0, v0, dt, frames)  # (C, F, 2), (C, F), (C, F), (C,)
         c = exy.shape[0]
         t = (np.arange(frames) + 1) * dt
@@ -315,6 +304,21 @@ def _pair_terms(exy: np.ndarray, ce: np.ndarray, se: np.ndarray, axy: np.ndarray
                     short = max(w - ((abs(along) - half_along) + margin_long), 0.0) / max(w, 1.0)
                     short2[c, m, f] = short * short
     return live[:k], a1[:k], b1[:k], a2[:k], b2[:k], short2
+
+
+def ego_axis(now: Scene, lateral_speed: float) -> tuple[np.ndarray, float, float]:
+    """The ego's position (2,) m, road-axis heading (rad) and speed (m/s) at the last column of `now`.
+
+    The road axis is the backend's own body heading (`sim_heading`) where it records one, else the heading of
+    motion less the lateral speed (m/s) the planner itself last commanded.
+    """
+    e = now.ego
+    v = float(now.speed[e, -1])
+    if "sim_heading" in now.extra:  # backend's own body heading: aligned with the road, not the motion
+        h = float(now.extra["sim_heading"][e, -1])
+    else:
+        h = float(now.heading[e, -1]) - float(np.arctan2(lateral_speed, max(v, 1e-3)))
+    return now.xy[e, -1].astype(np.float64), h, v
 
 
 def rows_of(ids: np.ndarray, wanted: np.ndarray) -> np.ndarray:

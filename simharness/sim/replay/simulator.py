@@ -203,7 +203,6 @@ class ReplaySimulator:
     # ------------------------------------------------------------------ output
     def _frame(self) -> Frame:
         k, t, e = self.k, self.valid.shape[1], self.ego
-        n = len(self.valid)
         if self.mode == "reactive" and k > 0:
             present = self._alive(k)
             xy, heading, speed = self._others_now(present)
@@ -227,8 +226,7 @@ class ReplaySimulator:
             speed=speed[rows].astype(np.float32), length=sc.length[rows], width=sc.width[rows],
             ego=int(np.flatnonzero(rows == e)[0]),
             extra={"sim_heading": sim_heading[rows].astype(np.float32)},
-        ) if n else Frame(t=0.0, agent_id=np.zeros(0, str), agent_type=np.zeros(0, np.int8), xy=np.zeros((0, 2)),
-                          heading=np.zeros(0), speed=np.zeros(0), length=np.zeros(0), width=np.zeros(0))
+        )
 
     def branch(self) -> ReplaySimulator:
         """An independent copy of the running episode (the recording shared, the state copied)."""
