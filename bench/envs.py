@@ -1,4 +1,4 @@
-"""Gym env speed against its backend, measured in one run (issue 12).
+"""Gym env speed against its backend, measured in one run.
 
 For each env (HighwayDense-v0, SumoDense-v0, default config): env-steps per second of one env driven
 by a seeded random policy (rendering off, one core, resets included in the time, as a training loop

@@ -44,6 +44,16 @@ def ade(pred: torch.Tensor, fut: torch.Tensor, mask: torch.Tensor) -> torch.Tens
     return (d * m).sum() / m.sum().clamp_min(1)
 
 
+def correction(pred: torch.Tensor, hist: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """Mean Euclidean distance (m per valid point) of the predicted means from constant-velocity extrapolation of the
+    target's Omega history hist (B, H, D): how far a residual model's correction moves its forecast."""
+    from predictor.models.gaussian import cv_extrapolation
+
+    d = torch.sqrt(((pred[..., :2] - cv_extrapolation(hist, pred.shape[1])) ** 2).sum(-1) + 1e-6)
+    m = mask.to(d.dtype)
+    return (d * m).sum() / m.sum().clamp_min(1)
+
+
 def nll_mse(pred: torch.Tensor, fut: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     """The means fit by MSE alone, sigma and rho by the NLL around the means held fixed: NLL (means detached) +
     MSE. The joint NLL lets a model widen sigma where its means are poor instead of improving them."""

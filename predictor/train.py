@@ -167,7 +167,8 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
           test_scenes: list[str] | None = None, cache_dir: Path | None = None, lr_schedule: str = "cosine",
           patience: int | None = None, device: str = "cpu", mean_loss: str = "nll",
           init: str | Path | None = None, select: str = "loss", augment: bool = False,
-          scale_jitter: float = 0.0, reannotate: Sequence[Level] = ()) -> dict[str, Any]:
+          scale_jitter: float = 0.0, reannotate: Sequence[Level] = (), correction_cost: float = 0.0
+          ) -> dict[str, Any]:
     """Train `model` on the train split of `data`, keep the best on the val split -> summary dict.
 
     lr_schedule: "cosine" (linear warm-up over LR_WARMUP of the steps, then cosine decay to LR_FLOOR x lr),
@@ -186,6 +187,8 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
     a log-uniform factor in [1 / (1 + j), 1 + j] (0: off; predictor.augment.scale_batch). reannotate: levels
     (`predictor.reannotate`) at which every training scene is copied; each training sample is then drawn from the
     original or one of its copies, uniformly, anew every epoch (validation stays on the original scenes).
+    correction_cost: residual form: add this times the mean distance of the means from constant velocity
+    (losses.correction) to the loss, so a correction is kept only where it pays for itself (0: off).
     Writes out/model.pt (the best epoch's weights), out/config.json, out/log.csv. Returns
     {"best_epoch", "best_val", "val_history", "epochs_run", "train_samples", "samples_per_s", ...}.
     """
@@ -193,7 +196,7 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
     from tqdm import tqdm
 
     from predictor.augment import mirror_batch, random_scales, scale_batch
-    from predictor.losses import LOSSES, loss_for_epoch, loss_name
+    from predictor.losses import LOSSES, correction, loss_for_epoch, loss_name
     from predictor.models import build_model
 
     if epochs < 1 or batch_size < 1 or not lr > 0 or warmup_epochs < 0 or (patience is not None and patience < 1):
@@ -201,6 +204,8 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
                         f"warm-up {warmup_epochs}, patience {patience}; expected positive numbers")
     if not 0 <= scale_jitter < 10:
         raise UserError(f"bad scale jitter {scale_jitter}; expected a fraction in [0, 10), e.g. 0.3")
+    if not 0 <= correction_cost < 10:
+        raise UserError(f"bad correction cost {correction_cost}; expected a number in [0, 10), e.g. 0.2")
     if mean_loss not in ("nll", "mse", "ade"):
         raise UserError(f"unknown mean loss {mean_loss!r}; expected nll, mse or ade")
     if select not in SELECT:
@@ -250,6 +255,9 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
     elif mcfg.get("cv_lags") == "auto":  # the lag whose constant velocity fits the training windows best
         mcfg["cv_lags"] = best_cv_lag(store, train_idx, min(AUTO_LAGS, store.H - 1)) if mcfg.get("residual") else 1
     net = build_model(model, mcfg)
+    if correction_cost > 0 and (not net.cfg.residual or hasattr(net, "training_step")):
+        raise UserError(f"--correction-cost is for the residual form of a model with a plain loss; {model} "
+                        f"{'has its own training step' if net.cfg.residual else 'is trained without --residual'}")
     init_info = init_weights(net, model, init) if init is not None else None
     net = net.to(dev)
     opt = torch.optim.Adam(net.parameters(), lr=lr, fused=True)  # one kernel for all parameters
@@ -276,6 +284,8 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
         config["train"]["init"] = init_info
     if scale_jitter > 0:  # only when on: the config hash of every other run stays what it was
         config["train"]["scale_jitter"] = scale_jitter
+    if correction_cost > 0:
+        config["train"]["correction_cost"] = correction_cost
     if reannotate:
         config["train"]["reannotate"] = [level_name(lv) for lv in reannotate]
     if max_val_samples is not None:
@@ -342,7 +352,10 @@ def train(data: Path, model: str = "traphic", out: Path = Path("runs/train"), ep
                 loss = net.training_step(b, kind, opt)
             else:
                 fn = LOSSES[loss_name(kind, mean_loss)]
-                loss = fn(net(b), b["fut"], b["fut_valid"])
+                pred = net(b)
+                loss = fn(pred, b["fut"], b["fut_valid"])
+                if correction_cost > 0:
+                    loss = loss + correction_cost * correction(pred, b["hist"], b["fut_valid"])
                 opt.zero_grad()
                 loss.backward()
                 opt.step()
@@ -462,7 +475,7 @@ def train_command(args: argparse.Namespace) -> int:
         gated = bool(theirs.get("residual")) and bool(theirs.get("cv_gate"))
     recorded = not simulated(read_manifest(Path(args.data)).get("info", {}))
     levels = parse_levels(getattr(args, "reannotate_noise", None), getattr(args, "reannotate_smooth", None),
-                          recorded and gated)
+                          recorded and gated, getattr(args, "reannotate_drift", None))
     prepare_output(args.out, getattr(args, "force", False))
     res = train(args.data, model=args.model, out=args.out, epochs=args.epochs, warmup_epochs=args.warmup_epochs,
                 batch_size=args.batch_size, lr=args.lr, seed=args.seed, max_samples=args.max_samples,
@@ -476,7 +489,7 @@ def train_command(args: argparse.Namespace) -> int:
                 device=getattr(args, "device", "auto"), mean_loss=getattr(args, "mean_loss", "ade"),
                 init=getattr(args, "init", None), select=getattr(args, "select", "ade"),
                 augment=getattr(args, "augment", True), scale_jitter=getattr(args, "scale_jitter", 0.0),
-                reannotate=levels)
+                reannotate=levels, correction_cost=getattr(args, "correction_cost", 0.0))
     select = res["config"]["train"]["select"]
     kind = select if select != "loss" else "nll" if res["best_epoch"] > args.warmup_epochs else "mse"
     print(f"{args.model}: kept epoch {res['best_epoch']} of {res['epochs_run']} (validation {kind.upper()} "

@@ -258,6 +258,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="with --cv-gate: read the jitter pooled over the target and its neighbours, or its own")
     r.add_argument("--mean-loss", choices=["ade", "mse", "nll"], default="ade",
                    help="what fits the means: Euclidean error, squared error, or the NLL (the paper)")
+    r.add_argument("--correction-cost", type=float, default=0.0, metavar="C",
+                   help="residual form: each metre the means move from constant velocity costs C metres of error, "
+                        "so a correction is kept only where it pays for itself; 0: off")
     r = t.add_argument_group("research settings (augmentation)")
     r.add_argument("--augment", action=argparse.BooleanOptionalAction, default=True,
                    help="mirror a random half of every batch left-right")
@@ -269,6 +272,9 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--reannotate-noise", type=float_list, default=None, metavar="M[,M...]",
                    help="also train on copies with M metres of white noise; 0: none (default: 0.1 where "
                         "--reannotate-smooth defaults to 0.5, else none)")
+    r.add_argument("--reannotate-drift", type=float_list, default=None, metavar="M[,M...]",
+                   help="also train on copies with M metres of drift (noise correlated over 0.2-1 s, as a tracker's "
+                        "filter leaves it); 0: none (default: none)")
 
     e = cmd("evaluate", "simharness.evaluation:evaluate_command", "score a predictor open-loop on a data set",
             description="Score a predictor open-loop on a data set's test scenes (or all): ADE / FDE as mean "
@@ -391,6 +397,9 @@ def build_parser() -> argparse.ArgumentParser:
              parents=[executor_args])
     st.add_argument("--predictor", default="oracle,traphic,const-vel,static,none",
                     help="egos, comma-separated: registered predictors, run folders, oracle, static, none")
+    st.add_argument("--planner", default=None,
+                    help="planner egos beside them, comma-separated: ppo (the shipped policy), a policy .zip, "
+                         "file.py:NAME, module:NAME; each drives on constant-velocity forecasts (default: none)")
     st.add_argument("--seeds", type=parse_seeds, default=None,
                     help="e.g. 0-49 (default: 0-49; with --until-resolved the seeds batches are drawn from, 0-999)")
     st.add_argument("--until-resolved", action="store_true",

@@ -8,15 +8,18 @@ Every frame:
    is extrapolated at constant velocity from its observed speed and heading. No agent vanishes from the plan because
    a forecast left it out.
 2. Proposals: target speeds x lateral offsets. Longitudinally each follows the intelligent driver model (IDM) at its
-   target speed behind the nearest agent ahead in its own corridor at each step (the agents at their forecast
-   positions), its acceleration moved towards IDM's at a bounded jerk and held within comfortable bounds (the
-   emergency proposals may brake at the ego's limit); laterally each moves from the ego's reference line (the line
+   target speed behind the nearest agent ahead in its own corridor at each step, or entering it within
+   `leader_lookahead_s` ahead of where the ego will be (the agents at their forecast positions), its acceleration
+   moved towards IDM's at a bounded jerk and held within comfortable bounds (the emergency proposals may brake at the
+   ego's limit); laterally each moves from the ego's reference line (the line
    the last chosen proposal was heading for) to its offset at a bounded lateral acceleration. Lane-less road: the
    offsets are metres, not lanes.
 3. Scores, the episode's own terms: gates (the proposal collides with an agent it would be at fault for, or leaves
    the drivable area: 0) times a weighted mean of progress (over the best safe proposal's), time-to-collision (never
    under `ttc_threshold` against the agents' forecast motion, extrapolated at constant velocity as the scorecard
    does) and comfort (nuPlan's bounds), nuPlan's weights 5, 5, 2; ties go to the proposal nearest the last one.
+   Where nothing on the road is clear, a proposal off it (the shoulder, the kerb) that is clear beats a collision
+   the ego would be at fault for.
 4. The ego is commanded the first step of the best proposal. Since every proposal starts from the ego's current
    acceleration and lateral speed and moves at a bounded jerk, the command sequence is smooth (the tracking).
 
@@ -39,8 +42,8 @@ from simharness.sim.base import EgoCommand, RoadGeometry
 
 @dataclasses.dataclass(frozen=True)
 class PDMConfig:
-    """Proposals, their motion model and the weights of their scores (tuned on seeds 1000-1019 of the stress
-    scenarios; the scored seeds are 0-49)."""
+    """Proposals, their motion model and the weights of their scores (tuned on seeds 1000-1019 and 0-9 of the stress
+    scenarios; the held-out scored seeds are 700-749)."""
 
     speed_fractions: tuple[float, ...] = (0.0, 0.25, 0.5, 0.75, 1.0)  # target speeds, shares of the ego's max
     lateral_offsets: tuple[float, ...] = (0.0, -0.75, 0.75, -1.5, 1.5, -3.0, 3.0)  # m from the reference, + left
@@ -55,10 +58,11 @@ class PDMConfig:
     emergency_jerk: float = 30.0  # m/s^3: jerk of an emergency proposal
     lateral_accel: float = 1.5  # m/s^2: how fast the lateral speed changes (nuPlan's bound 4.89)
     corridor_margin: float = 0.3  # m beside the boxes: who counts as the leader of a proposal
+    leader_lookahead_s: float = 1.5  # s: an agent entering the corridor this soon is a leader already
     margin_long: float = 0.3  # m ahead and behind the boxes: collision check
     margin_lat: float = 0.15  # m beside the boxes: collision check
     ttc_threshold: float = 1.5  # s: the scorecard's near-miss threshold
-    ttc_probes: int = 4  # constant-velocity probes up to ttc_threshold
+    ttc_probes: int = 8  # constant-velocity probes from 0 to ttc_threshold itself
     w_progress: float = 5.0
     w_ttc: float = 5.0
     w_comfort: float = 2.0
@@ -86,7 +90,8 @@ class PDMPlanner:
         emergency = np.arange(self._share.size) >= v.size
         self._jerk = np.where(emergency, cfg.emergency_jerk, cfg.comfort_jerk)  # (C,) m/s^3
         self._decel = np.where(emergency, self.limits.max_decel, cfg.comfort_decel)  # (C,) m/s^2
-        self._taus = np.arange(max(cfg.ttc_probes, 1)) * (cfg.ttc_threshold / max(cfg.ttc_probes, 1))  # (K,) s
+        # (K,) s: up to the threshold itself, so no time-to-collision the scorecard calls a near miss slips between
+        self._taus = np.linspace(0.0, cfg.ttc_threshold, max(cfg.ttc_probes, 2))
         self.reset()
 
     def set_road(self, road: RoadGeometry | None) -> None:
@@ -164,15 +169,16 @@ class PDMPlanner:
         a_vs, a_vy = np.diff(a_s, axis=1) / dt, np.diff(a_y, axis=1) / dt  # (M, F) speeds over each step
         c = self._share.size
         r = {k: np.empty((c, frames)) for k in ("s", "y", "v", "vy", "a")}
-        f_hit, f_close = np.empty(c, np.int64), np.empty(c, np.int64)
+        f_hit, f_close, v_other = np.empty(c, np.int64), np.empty(c, np.int64), np.empty(c)
         _proposals(np.maximum(self._share * lim.max_speed, 0.1), lat0 + self._off, self._jerk, self._decel,
                    np.array([v0, self._vlat, self._acc, dt, lim.max_accel, max(lim.max_speed, v0),
                              lim.max_lateral_speed, np.tan(lim.max_slip), cfg.idm_standstill, cfg.idm_headway_s,
                              np.sqrt(max(lim.max_accel, 0.1) * cfg.idm_decel), cfg.lateral_accel,
-                             cfg.corridor_margin, cfg.margin_long, cfg.margin_lat, le / 2, we / 2]),
+                             cfg.corridor_margin, cfg.margin_long, cfg.margin_lat, le / 2, we / 2,
+                             round(cfg.leader_lookahead_s / dt)]),
                    self._taus, np.ascontiguousarray(a_s), np.ascontiguousarray(a_y), np.ascontiguousarray(a_vs),
                    np.ascontiguousarray(a_vy), np.ascontiguousarray(a_hx), np.ascontiguousarray(a_hy),
-                   r["s"], r["y"], r["v"], r["vy"], r["a"], f_hit, f_close)
+                   r["s"], r["y"], r["v"], r["vy"], r["a"], f_hit, f_close, v_other)
         th = np.arctan2(r["vy"], np.maximum(r["v"], 1e-3))  # (C, F) ego heading off the road axis
         collides = f_hit < frames
         # Time to collision: 1 where it stays above the threshold (nuPlan's binary term); a little credit for a later
@@ -206,10 +212,15 @@ class PDMPlanner:
         score = (cfg.w_progress * ratio + cfg.w_ttc * ttc_ok + cfg.w_comfort * comfortable) / (
             cfg.w_progress + cfg.w_ttc + cfg.w_comfort)
         # Where every proposal collides: the slowest at its first collision (an ego that has stopped is not at fault),
-        # then the latest; off the road: last resort.
+        # then the latest.
         v_hit = r["v"][np.arange(c), np.minimum(f_hit, frames - 1)]
         fallback = -2.0 - v_hit / max(lim.max_speed, 1.0) + 0.1 * f_hit / frames
-        score = np.where(safe, score, np.where(ok_road, fallback, -3.0))
+        # No faster along the road than the one it touches (stopped behind a merger, say): not the ego's fault on the
+        # scorecard, so better than leaving the road.
+        fallback += np.where(v_hit <= v_other + 0.1, 1.0, 0.0)
+        # Off the road but clear of everyone (onto the shoulder or kerb) beats every collision at speed: a lane-less
+        # road's escape, scored as leaving the drivable area, which the scorecard gates as it gates an at-fault one.
+        score = np.where(safe, score, np.where(ok_road, fallback, np.where(collides, -3.0, -1.5)))
         # Offset 0 is the line the last choice was heading for.
         score -= cfg.w_consistency * (np.abs(self._share - self._choice) + np.abs(self._off) / 3.0)
         best = int(np.argmax(score))
@@ -227,42 +238,50 @@ _F1, _F2 = types.float64[:], types.float64[:, :]
 
 
 @njit((_F1, _F1, _F1, _F1, _F1, _F1, _F2, _F2, _F2, _F2, _F2, _F2, _F2, _F2, _F2, _F2, _F2,
-       types.int64[:], types.int64[:]), cache=True)
+       types.int64[:], types.int64[:], _F1), cache=True)
 def _proposals(target: np.ndarray, goal: np.ndarray, jerk: np.ndarray, decel: np.ndarray, p: np.ndarray,
                taus: np.ndarray, a_s: np.ndarray, a_y: np.ndarray, a_vs: np.ndarray, a_vy: np.ndarray,
                a_hx: np.ndarray, a_hy: np.ndarray, s_out: np.ndarray, y_out: np.ndarray, v_out: np.ndarray,
-               vy_out: np.ndarray, a_out: np.ndarray, f_hit: np.ndarray, f_close: np.ndarray) -> None:
+               vy_out: np.ndarray, a_out: np.ndarray, f_hit: np.ndarray, f_close: np.ndarray,
+               v_other: np.ndarray) -> None:
     """Roll out and check every proposal of `PDMPlanner.plan`, in the ego frame (x along the road, y left).
 
     target (C,) m/s: IDM's desired speed; goal (C,) m: lateral position aimed at; jerk (C,) m/s^3, decel (C,) m/s^2:
     the proposal's bounds; p: v0, vy0, a0, dt, max_accel, max_speed, max_lateral_speed, tan(max_slip),
     idm_standstill, idm_headway_s, sqrt(a b), lateral_accel, corridor_margin, margin_long, margin_lat, ego half
-    length, ego half width; taus (K,) s: time-to-collision probes; agents: a_s, a_y (M, F + 1) m, a_hx, a_hy
-    (M, F + 1) half extents on the road axes, column f at f dt; a_vs, a_vy (M, F) m/s over each step. Writes
-    s, y, v, vy, a (C, F) (state at the end of each step, acceleration over it); f_hit (C,): the first step that
-    collides (margins added; agents behind the ego's centre only while the ego moves sideways towards them), F if
-    none; f_close (C,): the first step where a probe overlaps (no margins), i.e. the time-to-collision falls under the
-    threshold, F if none.
+    length, ego half width, leader lookahead (steps); taus (K,) s: time-to-collision probes; agents: a_s, a_y (M, F
+    + 1) m, a_hx, a_hy (M, F + 1) half extents on the road axes, column f at f dt; a_vs, a_vy (M, F) m/s over each
+    step. Writes s, y, v, vy, a (C, F) (state at the end of each step, acceleration over it); f_hit (C,): the first
+    step that collides (margins added; agents behind the ego's centre only while the ego moves sideways towards
+    them), F if none; v_other (C,) m/s: the along-road speed of the agent first hit; f_close (C,): the first step
+    where a probe overlaps (no margins) an agent not behind the moving ego, i.e. the time-to-collision falls under
+    the threshold, F if none.
     """
     v0, vy0, a0, dt, a_max, v_cap, vy_max, tan_slip = p[0], p[1], p[2], p[3], p[4], p[5], p[6], p[7]
     s0, headway, sqrt_ab, lat_acc, corridor, m_long, m_lat, le2, we2 = p[8], p[9], p[10], p[11], p[12], p[13], \
         p[14], p[15], p[16]
+    look = int(p[17])
     ease = jerk.min()
     n_c, n_f = s_out.shape
     n_m = a_s.shape[0]
     for c in range(n_c):
         s, y, v, vy, a = 0.0, 0.0, v0, vy0, a0
         f_hit[c] = n_f
+        v_other[c] = 0.0
         f_close[c] = n_f
         for f in range(n_f):
-            # IDM behind the nearest agent ahead in the proposal's corridor, the agents where they are now.
+            # IDM behind the nearest agent ahead in the proposal's corridor, now or within `look` steps that the ego
+            # at its present speed has not passed by then: a crosser is followed from before it enters, not after.
             gap, lead_v = np.inf, 0.0
             for m in range(n_m):
-                rel = a_s[m, f] - s
-                if rel > 0 and abs(a_y[m, f] - y) < we2 + a_hy[m, f] + corridor:
-                    g = rel - le2 - a_hx[m, f]
-                    if g < gap:
-                        gap, lead_v = g, a_vs[m, f]
+                for k in range(f, min(f + look, n_f) + 1):
+                    rel = a_s[m, k] - s
+                    if rel > 0 and abs(a_y[m, k] - y) < we2 + a_hy[m, k] + corridor and \
+                            rel - v * (k - f) * dt > -le2 - a_hx[m, k]:
+                        g = rel - le2 - a_hx[m, k]
+                        if g < gap:
+                            gap, lead_v = g, a_vs[m, min(k, n_f - 1)]
+                        break
             inter = 0.0
             if gap < np.inf:
                 want = s0 + max(0.0, v * headway + v * (v - lead_v) / (2.0 * sqrt_ab))
@@ -295,7 +314,9 @@ def _proposals(target: np.ndarray, goal: np.ndarray, jerk: np.ndarray, decel: np
                 if f_hit[c] == n_f and abs(ds) < sx + m_long and abs(dy) < sy + m_lat:
                     if ds > 0 or (dy > 0 and vy > 0.1) or (dy < 0 and vy < -0.1):
                         f_hit[c] = f
-                if f_close[c] == n_f:
+                        v_other[c] = a_vs[m, f]
+                # Time to collision as the scorecard's: agents not behind the moving ego (bearing over 150 degrees).
+                if f_close[c] == n_f and v > 5e-3 and not (ds < 0 and abs(dy) < -ds * 0.5774):
                     for tau in taus:
                         if abs(ds + (a_vs[m, f] - v) * tau) < sx and abs(dy + (a_vy[m, f] - vy) * tau) < sy:
                             f_close[c] = f

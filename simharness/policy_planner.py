@@ -93,7 +93,7 @@ class PolicyPlanner:
                                       float(now.dt))
             obs = {"agents": obs, "forecast": fc.reshape(-1) if c["flatten"] else fc}
         action, _ = self.policy.predict(obs, deterministic=self.deterministic)
-        return action_to_command(action, c, "PolicyPlanner")
+        return action_to_command(action, c, "PolicyPlanner", float(frame.speed[frame.ego]))
 
 
 # ---------------------------------------------------------------------- loading SB3 zips without unpickling

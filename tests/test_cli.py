@@ -80,7 +80,8 @@ def test_train_help_lists_the_newcomer_options_before_the_research_settings(caps
     research = body.index("research settings")
     for option in NEWCOMER:
         assert re.search(rf"^\s+{option}\b", body[:research], re.MULTILINE), option
-    for option in ["--lr-schedule", "--select", "--cv-gate", "--mean-loss", "--reannotate-noise", "--test-scenes"]:
+    for option in ["--lr-schedule", "--select", "--cv-gate", "--mean-loss", "--reannotate-noise", "--reannotate-drift",
+                   "--correction-cost", "--test-scenes"]:
         assert re.search(rf"^\s+{option}\b", body[research:], re.MULTILINE), option
     assert len(text.splitlines()) < 90
 

@@ -49,7 +49,7 @@ def test_human_rendering_without_a_display_is_refused_in_one_line(monkeypatch):
 
 
 def test_highway_env_reward_terms_truncation_and_step_after_the_end():
-    weights = {"alive": 0.0, "progress": 1.0, "accel": 0.0, "jerk": 0.0, "lateral": 0.0}
+    weights = {"alive": 0.0, "progress": 1.0, "accel": 0.0, "jerk": 0.0, "lateral": 0.0, "ttc": 0.0}
     env = gym.make("simharness/HighwayDense-v0", config={**HW, "target_speed": 1000.0, "reward": weights})
     env.reset(seed=2)
     total, steps = 0.0, 0
@@ -230,7 +230,7 @@ def test_collision_free_episode_outscores_any_at_fault_crash():
     best = Motion(moved=5.0, accel=0.0, jerk=0.0, lateral=0.0)
     for w in (DEFAULT_CONFIG["reward"], {**DEFAULT_CONFIG["reward"], "alive": 0.0, "jerk": -2.0},
               {**DEFAULT_CONFIG["reward"], "alive": 1.0, "progress": 3.0, "lateral": -0.5}):
-        floor = min(step_reward(w, worst, 2.78, 1.5, True, None, steps), 0.0)  # off the road a step earns 0
+        floor = min(step_reward(w, worst, 2.78, 1.5, True, None, steps, 0.0), 0.0)  # off the road a step earns 0
         top = step_reward(w, best, 2.78, 1.5, True, None, steps)
         assert top == pytest.approx(w["alive"] + w["progress"])
         assert step_reward(w, best, 2.78, 1.5, False, None, steps) == 0.0  # off the road: nothing
@@ -238,6 +238,38 @@ def test_collision_free_episode_outscores_any_at_fault_crash():
         assert crash < steps * floor
         hit = step_reward(w, best, 2.78, 1.5, True, "hit", steps)
         assert step_reward(w, best, 2.78, 1.5, True, "at_fault", steps) < hit < 0
+
+
+def test_closing_in_costs_before_the_contact():
+    """The ttc term: nothing with nobody foreseen within 3 s, then more the sooner a contact is foreseen."""
+    from simharness.envs.config import DEFAULT_CONFIG
+    from simharness.envs.reward import TTC_CAP, Motion, step_reward
+
+    w, m = DEFAULT_CONFIG["reward"], Motion(moved=1.4, accel=0.0, jerk=0.0, lateral=0.0)
+    free, far, near, now = (step_reward(w, m, 1.4, 1.5, True, None, 100, t) for t in (TTC_CAP, 3.0, 1.5, 0.0))
+    assert free == far == pytest.approx(w["alive"] + w["progress"])
+    assert free > near > now and free - now == pytest.approx(-w["ttc"])
+
+
+def test_speed_meta_actions_hold_their_speed():
+    """"speed" meta-actions steer the ego's speed to their target: cruise settles at 7 m/s, stop brakes."""
+    from simharness.envs.actions import SPEED_META_ACTIONS, TARGET_SPEEDS
+
+    env = gym.make(HW_ID, config={**HW, "action": "speed", "duration": 6.0}).unwrapped
+    assert env.action_space == gym.spaces.Discrete(12) and SPEED_META_ACTIONS[7] == "cruise, straight"
+    env.reset(seed=0)
+    v = env._history.now.speed[env._history.now.ego]
+    assert env.command(1).acceleration == pytest.approx(max(-2 * v, -7.0))  # (0 - v) / 0.5 s, within max_decel
+    assert env.command(5).lateral_velocity == pytest.approx(-0.75)
+    speeds = []
+    for _ in range(15):
+        _, _, term, trunc, info = env.step(7)
+        speeds.append(info["speed"])
+        if term or trunc:
+            break
+    if not info["collided"]:
+        assert abs(speeds[-1] - TARGET_SPEEDS["cruise"]) < 0.5
+    env.close()
 
 
 def _frames(ego_xy, ego_v, other_xy, other_v, n=9, dt=0.2):

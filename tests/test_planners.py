@@ -237,6 +237,31 @@ def test_pdm_commands_are_smooth_unless_a_collision_forces_them():
     assert acc.min() < -0.5 and np.abs(acc).max() <= 4.05 and jerk.max() <= 8.37
 
 
+def test_pdm_slows_for_a_crosser_before_it_enters_its_corridor():
+    # A pedestrian 30 m ahead crosses from the left at 1.5 m/s: in the ego's corridor within a second.
+    from simharness.pdm_planner import PDMConfig
+
+    now = _now(10.0, [(30.0, 3.0, 0.0)])
+    t = np.arange(1, 26) * 0.2
+    mean = np.stack([np.full(25, 30.0), 3.0 - 1.5 * t], -1)[None].astype(np.float32)
+    fc = Forecast(agent_id=now.agent_id[1:], mean=mean, dt=0.2)
+    first = {la: PDMPlanner(EgoLimits(max_speed=14.0), PDMConfig(leader_lookahead_s=la), road=_road(5.0)).plan(
+        now, fc).acceleration for la in (0.0, 1.5)}
+    assert first[1.5] < 0.0 < first[0.0]  # followed from before it enters, not only once it is in the way
+
+
+def test_pdm_escapes_off_the_road_only_when_every_road_proposal_collides():
+    # A car comes head-on down the ego's line on a 4 m road: braking cannot avoid it, the shoulder can.
+    now = _now(10.0, [(60.0, 0.0, -15.0)])
+    fc = _cv_forecast(now)
+    narrow = _pdm(half_width=2.0)
+    narrow.plan(now, fc)
+    assert np.abs(narrow.last_rollout[-1, 1]) > 2.0  # ends off the road, clear of the car
+    wide = _pdm(half_width=6.0)
+    wide.plan(now, fc)
+    assert wide.last_score.max() > 0  # a road wide enough: a safe proposal on it, no escape needed
+
+
 def test_pdm_is_deterministic_and_copyable():
     import copy
     import pickle

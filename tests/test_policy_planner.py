@@ -50,6 +50,18 @@ def test_planner_sees_the_env_observation_and_maps_actions_like_the_env():
     env.close()
 
 
+def test_speed_meta_actions_steer_from_the_ego_s_speed_like_the_env():
+    env = gym.make("simharness/HighwayDense-v0", config={"duration": 4.0, "warmup": 8.0, "action": "speed"}).unwrapped
+    env.reset(seed=3)
+    policy = Recorder((0.0, 0.0))
+    policy.action = np.int64(1)  # "stop, straight": brakes from the ego's speed now
+    planner = PolicyPlanner(policy, {"action": "speed"})
+    for frame in env._history.frames:
+        command = planner.plan(_now(frame), None)
+    assert command == env.command(1) and command.acceleration < -1.0
+    env.close()
+
+
 def test_forecast_observation_matches_the_env():
     cfg = {"duration": 4.0, "warmup": 8.0, "predictor": "const-vel", "num_agents": 8}
     env = gym.make("simharness/HighwayDense-v0", config=cfg).unwrapped

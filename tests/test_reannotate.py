@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from predictor.features import FeatureStore, WindowConfig
-from predictor.reannotate import RECORDED, copy_id, noisy, parse_levels, reannotated, simulated, smoothed
+from predictor.reannotate import RECORDED, copy_id, drifting, noisy, parse_levels, reannotated, simulated, smoothed
 from predictor.train import _copy_table, _with_copies, open_data, train
 from simharness.errors import UserError
 from simharness.io.parquet import write_dataset
@@ -60,11 +60,30 @@ def test_noise_has_its_std_in_metres_is_seeded_by_scene_and_level_and_skips_inva
     assert not np.array_equal(noisy(scene, 0.1, 20.0, 1).xy, noisy(scene, 0.1, 20.0, 2).xy)
 
 
+def test_drift_has_its_std_in_metres_sways_slowly_is_seeded_and_skips_invalid_frames():
+    scene = flow_scene(0, n=30, t=200)
+    scene = scene.replace(valid=scene.valid.copy())
+    scene.valid[0, :10] = False
+    a = reannotated(scene, "s", ("drift", 0.2), scale=20.0)  # 20 units per metre
+    d = (a.xy - scene.xy)[scene.valid]
+    assert abs(d.std() - 4.0) < 0.6 and np.all(a.xy[0, :10] == scene.xy[0, :10])
+    assert np.array_equal(a.xy, reannotated(scene, "s", ("drift", 0.2), scale=20.0).xy)
+    assert not np.array_equal(a.xy, reannotated(scene, "t", ("drift", 0.2), scale=20.0).xy)
+    # correlated along time, unlike white noise: consecutive frames' errors agree (the lag-1 correlation of white
+    # noise is zero), so its steps are smaller than white noise's of the same std
+    err = drifting(scene, 1.0, 1.0, 3).xy - scene.xy
+    white = noisy(scene, 1.0, 1.0, 3).xy - scene.xy
+    lag1 = float((err[:, 1:] * err[:, :-1]).mean() / (err * err).mean())
+    assert lag1 > 0.6 and np.abs(np.diff(err, axis=1)).mean() < 0.6 * np.abs(np.diff(white, axis=1)).mean()
+
+
 def test_levels_parse_default_by_kind_of_data_and_bad_ones_are_refused():
     assert parse_levels([0.1, 0], [0.5]) == (("smooth", 0.5), ("noise", 0.1))
     assert parse_levels([0], [0]) == ()
     assert parse_levels(None, None) == RECORDED and parse_levels(None, None, by_default=False) == ()
     assert parse_levels([0.2], None, by_default=False) == (("noise", 0.2),)
+    assert parse_levels(None, None, drift=[0.2]) == (*RECORDED, ("drift", 0.2))
+    assert parse_levels([0], [0], drift=[0.1, 0]) == (("drift", 0.1),)
     assert simulated({"source": "simharness generate", "backend": "sumo"})
     assert not simulated({"importer": "simharness.io.importers", "source": {"format": "traf"}})
     for noise, smooth in (([-0.1], []), ([], [float("nan")]), ([1e3], [])):
@@ -128,6 +147,9 @@ def test_the_cli_copies_by_default_records_it_and_refuses_a_bad_level(tmp_path, 
                  "--out", str(tmp_path / "b")]) == 0
     cfg = json.loads((tmp_path / "b" / "config.json").read_text())
     assert cfg["train"]["reannotate"] == ["noise0.05m", "noise0.2m"]
+    assert main(["train", *common, "--reannotate-drift", "0.2", "--out", str(tmp_path / "d")]) == 0
+    cfg = json.loads((tmp_path / "d" / "config.json").read_text())
+    assert cfg["train"]["reannotate"] == ["smooth0.5s", "noise0.1m", "drift0.2m"]
     sim = tmp_path / "sim"
     write_dataset([flow_scene(s) for s in range(4)], sim, {"source": "simharness generate", "backend": "sumo"})
     assert main(["train", *common[2:], "--data", str(sim), "--out", str(tmp_path / "s")]) == 0

@@ -87,6 +87,16 @@ def test_near_misses_exclude_spells_that_end_in_contact():
     assert not nm[2].any()
 
 
+def test_ttc_relevant_leaves_out_agents_behind_and_a_standing_ego():
+    # Ego (row 0) at the origin heading +x; agents ahead, beside, behind-left (bearing 135 deg), dead behind.
+    xy = np.array([[0, 0], [10, 0], [0, 3], [-3, 3], [-10, 0]], float)[:, None].repeat(2, 1)
+    heading = np.zeros((5, 2))
+    speed = np.array([[5.0, 0.0]] + [[3.0, 3.0]] * 4)  # the ego moves at frame 0, stands at frame 1
+    rel = safety.ttc_relevant(xy, heading, speed, np.ones((5, 2), bool), ego=0)
+    assert rel[:, 0].tolist() == [False, True, True, True, False]
+    assert not rel[:, 1].any()
+
+
 def test_collisions_by_type_count_spells():
     contact = np.zeros((3, 8), bool)
     contact[1, 1:3] = True

@@ -71,6 +71,22 @@ def test_stress_suite_end_to_end(tmp_path):
     assert "no difference resolved" in proc.stdout or "safer than" in proc.stdout
 
 
+def test_stress_runs_a_learned_planner_as_an_ego_paired_with_the_baseline(tmp_path):
+    out = tmp_path / "suite"
+    proc = cli("stress", "--predictor", "const-vel", "--planner", "ppo", "--scenarios", "brake", "--seeds", "0-1",
+               "--duration", "2", "--workers", "1", "--out", str(out))
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    board = strict_loads((out / "leaderboard.json").read_text())
+    assert board["info"]["egos"] == ["const-vel", "ppo"]
+    eps = board["episodes"]["brake"]["ppo"]
+    assert [e["seed"] for e in eps] == [0, 1] and {e["planner"] for e in eps} == {"ppo"}
+    assert {e["planner"] for e in board["episodes"]["brake"]["const-vel"]} == {"pdm"}
+    assert board["paired"]["ppo"]["composite"]["pooled"]["n"] == 2
+    clash = cli("stress", "--predictor", "const-vel", "--planner", "const-vel", "--scenarios", "brake",
+                "--out", str(tmp_path / "x"))
+    assert clash.returncode == 2 and "--planner" in clash.stderr and clash.stderr.strip().count("\n") == 0
+
+
 def test_stress_bad_resolve_is_one_line(tmp_path):
     proc = cli("stress", "--predictor", "static", "--until-resolved", "--resolve", "nobody", "--scenarios", "brake",
                "--out", str(tmp_path / "x"))

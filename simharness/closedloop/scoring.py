@@ -11,7 +11,8 @@ Composite, per episode (E episodes vectorise: every input (E,), output (E,)):
 - left_drivable: a corner of the ego's box (shrunk by `DRIVABLE_TOLERANCE`) left the drivable area;
 - progress_ratio: the ego's progress over the traffic flow's (the mean speed of the vehicles within
   `FLOW_RADIUS` m of the ego times the ego's time), capped at 1; making_progress: progress_ratio >= 0.2;
-- ttc_ok: no near miss (time-to-collision never below `LoopConfig.ttc_threshold`);
+- ttc_ok: no near miss (time-to-collision never below `LoopConfig.ttc_threshold`, to agents not behind the moving
+  ego: `safety.ttc_relevant`, nuPlan's selection);
 - comfortable: peak |acceleration|, |jerk| and |lateral acceleration| within `COMFORT_BOUNDS` (nuPlan's), from the
   ego's first commanded frame on (the simulator drives its first frame).
 """
@@ -39,6 +40,7 @@ COMPOSITE_WEIGHTS = {"progress": 5.0, "ttc": 5.0, "comfort": 2.0}  # nuPlan's we
 COMFORT_BOUNDS = {"accel_max": 4.05, "jerk_max": 8.37, "lat_accel_max": 4.89}  # m/s^2, m/s^3 (nuPlan's)
 MIN_PROGRESS_RATIO = 0.2  # below this share of the flow's progress the episode scores 0 (nuPlan's)
 FLOW_RADIUS = 30.0  # m: the vehicles whose speed is the traffic flow the ego's progress is measured against
+NUPLAN_TTC = 0.95  # s: nuPlan's near-miss threshold (`near_miss_nuplan`, reported beside the scorecard's own)
 DRIVABLE_TOLERANCE = 0.2  # m: the ego's box is shrunk by this before testing it against the drivable area
 
 
@@ -109,6 +111,7 @@ def score_episode(scene: Scene, issued: Issued, config: LoopConfig) -> dict[str,
     contact &= ~placed
     vel = scene.speed[..., None] * np.stack([np.cos(hd), np.sin(hd)], -1)
     ttc = safety.time_to_collision(xy, vel, bh, ln, wd, va, e, horizon=config.ttc_horizon)
+    ttc = np.where(safety.ttc_relevant(xy, bh, scene.speed, va, e), ttc, np.inf)  # nuPlan's: not behind, ego moving
     near = safety.near_misses(ttc, contact, va, config.ttc_threshold)
     gap = safety.min_gap(xy, bh, ln, wd, va, e)
     bg = safety.background_collisions(xy, bh, ln, wd, va, e)
@@ -127,6 +130,7 @@ def score_episode(scene: Scene, issued: Issued, config: LoopConfig) -> dict[str,
         "phantom_braking_s": float(phantom.sum() * dt),
         "first_collision_t": float(scene.times[np.flatnonzero(contact.any(0))[0]]) if contact.any() else None,
         "near_miss": float(near.any()),
+        "near_miss_nuplan": float(safety.near_misses(ttc, contact, va, NUPLAN_TTC).any()),
         "near_misses_per_min": float(near.sum() / max(ego_minutes, 1e-9)),
         "min_gap_m": float(gap.min()) if np.isfinite(gap).any() else nan,
         "min_ttc_s": float(ttc.min()) if np.isfinite(ttc).any() else None,

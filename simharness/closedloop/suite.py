@@ -5,7 +5,10 @@ Per scenario and pooled over the suite (each scenario weighing the same): the at
 collision rate, the composite score, the near-miss rate, the online ADE and the forecast coverage, each a mean
 with a 95% percentile-bootstrap CI (stratified by scenario when pooled). Every prediction-driven ego is then
 compared with the baseline seed by seed (`paired`): the paired difference with its 95% CI and a plain verdict.
-'none' (the simulator's own driver, no prediction) is reported apart, as a reference.
+'none' (the simulator's own driver, no prediction) is reported apart, as a reference. Planners named in
+`planners` (a learned policy such as 'ppo', a policy .zip, a plug-in) are egos too: each drives instead of the
+prediction-driven planner, fed constant-velocity forecasts where it reads any, and is paired with the baseline
+like the prediction-driven egos.
 
 With `until_resolved` the seeds are run in batches until the pooled at-fault difference of the `resolve` ego
 minus the baseline has a CI half-width <= `target` (with at least `MIN_RESOLVE_SEEDS` seeds per scenario), the
@@ -56,6 +59,7 @@ class SuiteSettings:
     workers: int = 2
     executor: str = "local"
     address: str | None = None
+    planners: tuple[str, ...] = ()  # planner egos (learned policies, plug-ins), labelled by name
 
 
 def stress_scenarios(names: Sequence[str] | None = None, duration: float | None = None) -> list[ScenarioSpec]:
@@ -91,6 +95,22 @@ def default_resolve(egos: Sequence[str], baseline: str) -> str | None:
     return next((e for e in egos if e != baseline and e not in REFERENCE_EGOS), None)
 
 
+PLANNER_FORECASTS = BASELINE  # the forecasts a planner ego is fed (a policy that reads none ignores them)
+
+
+def ego_job(spec: ScenarioSpec, seed: int, ego: str, planners: Sequence[str], config: LoopConfig) -> EpisodeJob:
+    """The episode of `ego` on `seed`: a prediction-driven ego (the default planner, its forecasts) or, for a name
+    in `planners`, that planner driving on constant-velocity forecasts."""
+    if ego in planners:
+        return EpisodeJob(spec, seed, PLANNER_FORECASTS, config, keep_scene=False, planner=ego)
+    return EpisodeJob(spec, seed, ego, config, keep_scene=False)
+
+
+def ego_of(job: EpisodeJob) -> str:
+    """The ego label of a job (`ego_job`'s inverse)."""
+    return job.planner if job.planner != "pdm" else job.predictor
+
+
 def episode_scores(job: EpisodeJob) -> dict[str, Any]:
     """The job function: one episode -> its scalar scores (and seed, ego, timings)."""
     return {k: v for k, v in run_episode(job)["scores"].items() if not isinstance(v, dict)}
@@ -107,7 +127,7 @@ def run_batch(specs: Sequence[ScenarioSpec], egos: Sequence[str], seeds: Sequenc
 
     from simharness.executors import make_executor
 
-    jobs = [EpisodeJob(spec, s, ego, config, keep_scene=False) for s in seeds for spec in specs for ego in egos]
+    jobs = [ego_job(spec, s, ego, settings.planners, config) for s in seeds for spec in specs for ego in egos]
     out: dict[str, dict[str, list[dict[str, Any]]]] = {sp.name: {e: [] for e in egos} for sp in specs}
     failed = []
     bar = tqdm(total=len(jobs), desc=f"stress seeds {seeds[0]}-{seeds[-1]}", unit="ep", file=sys.stderr,
@@ -117,10 +137,10 @@ def run_batch(specs: Sequence[ScenarioSpec], egos: Sequence[str], seeds: Sequenc
                 episode_scores, jobs):
             bar.update(1)
             if r.ok:
-                out[r.job.spec.name][r.job.predictor].append(r.value)
+                out[r.job.spec.name][ego_of(r.job)].append(r.value)
             else:
                 raise_user_error(r.error)
-                failed.append(f"{r.job.spec.name} {r.job.predictor} seed {r.job.seed}: {r.error}")
+                failed.append(f"{r.job.spec.name} {ego_of(r.job)} seed {r.job.seed}: {r.error}")
     finally:
         bar.close()
     if failed:
@@ -168,9 +188,17 @@ def run_suite(specs: Sequence[ScenarioSpec], settings: SuiteSettings, config: Lo
     """Run the suite (in batches with `until_resolved`) -> {"info", "scenarios", "pooled", "paired", "episodes"}."""
     config = config or LoopConfig()
     egos = egos_of(settings.predictors, settings.baseline)
+    if clash := set(egos) & set(settings.planners):
+        raise UserError(f"--planner {', '.join(sorted(clash))}: also named in --predictor; an ego needs one name")
     for e in egos:
         if e not in REFERENCE_EGOS:
             _predictor(e)  # a bad name fails now, before any process starts
+    if settings.planners:
+        from simharness.plugins import check_planner
+
+        for p in settings.planners:
+            check_planner(p, specs[0])
+        egos = (*egos, *settings.planners)
     resolve = settings.resolve or default_resolve(egos, settings.baseline)
     if settings.until_resolved and (resolve is None or resolve not in egos or resolve == settings.baseline):
         raise UserError(f"--resolve: expected one of the egos run other than the baseline {settings.baseline!r} "
@@ -356,7 +384,8 @@ def stress_command(args: Any) -> int:
     settings = SuiteSettings(predictors=tuple(str(args.predictor).split(",")), seeds=tuple(seeds),
                              baseline=args.baseline, until_resolved=until, resolve=args.resolve, target=args.target,
                              budget_minutes=args.budget_minutes, batch=args.batch, workers=args.workers,
-                             executor=args.executor, address=args.address)
+                             executor=args.executor, address=args.address,
+                             planners=tuple(p.strip() for p in str(args.planner or "").split(",") if p.strip()))
     scenarios = [s.strip() for s in args.scenarios.split(",") if s.strip()] if args.scenarios else None
     specs = stress_scenarios(scenarios, args.duration)
     out = prepare_output(Path(args.out), getattr(args, "force", False))

@@ -27,12 +27,14 @@ Action (`simharness.envs.actions`): ``config["action"] = "continuous"`` (default
 acceleration ``a[0] * max_accel`` / ``a[0] * max_decel`` (m/s^2) and lateral velocity ``a[1] *
 max_lateral_speed`` (m/s, + left); NaN or infinite values raise ValueError (nothing is stepped).
 ``"discrete"``: ``Discrete(12)`` meta-actions, {brake, slower, hold, faster} x {nudge left, straight,
-nudge right}. `DenseTrafficEnv.command(action)` gives the physical `EgoCommand`.
+nudge right}; ``"speed"``: ``Discrete(12)``, target speeds {stop, slow, cruise, fast} x the same nudges.
+`DenseTrafficEnv.command(action)` gives the physical `EgoCommand`.
 
 Reward per step (weights in ``config["reward"]``, `simharness.envs.reward`): a collision-free step on the
-road earns ``alive + progress * min(speed made good / target_speed, 1)`` less the comfort terms on what
-the ego did (measured acceleration, jerk, speed across the traffic flow), each saturating at the
-scorecard's comfort bounds, so every such step earns >= 0 at the defaults; a new contact, judged as the
+road earns ``alive + progress * min(speed made good / target_speed, 1)`` (target_speed 7 m/s, about the
+traffic's median speed) less the comfort terms on what the ego did (measured acceleration, jerk, speed
+across the traffic flow), each saturating at the scorecard's comfort bounds, less a term growing as the
+ego's time-to-collision falls below 3 s; a new contact, judged as the
 scorecard judges it, pays ``collision_at_fault`` (or ``collision_hit``) times the best episode's return.
 So any collision-free episode outscores any episode with an at-fault collision. An episode terminates on
 a collision (if ``terminate_on_collision``) or when the ego leaves the end of the road, and is truncated

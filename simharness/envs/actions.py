@@ -8,6 +8,11 @@ Discrete (``"discrete"``): ``Discrete(12)``, meta-actions for lane-less traffic,
 lateral over the `LONGITUDINAL` and `LATERAL` sets below (in the continuous action's units), e.g. 10 is
 "faster, straight", 7 "hold, straight" and 3 "slower, nudge left". Each is held for the next frame, like a
 continuous action.
+
+Speed (``"speed"``): ``Discrete(12)``, index = 3 * speed + lateral over the `TARGET_SPEEDS` (m/s) and the same
+`LATERAL` set: the ego's acceleration closes the gap to the chosen speed in `SPEED_TAU` s, within
+[-max_decel, max_accel], so "cruise" keeps cruising speed and "stop" brakes as hard as allowed; e.g. 7 is
+"cruise, straight" and 1 "stop, straight". `SPEED_META_ACTIONS` names them.
 """
 
 from __future__ import annotations
@@ -26,26 +31,36 @@ LONGITUDINAL = {"brake": -1.0, "slower": -0.3, "hold": 0.0, "faster": 0.6}
 LATERAL = {"nudge left": 0.5, "straight": 0.0, "nudge right": -0.5}
 META_ACTIONS = [f"{lon}, {lat}" for lon in LONGITUDINAL for lat in LATERAL]  # index -> name
 DISCRETE_ACTIONS = np.array([[a, b] for a in LONGITUDINAL.values() for b in LATERAL.values()])  # (12, 2)
+# name -> target speed (m/s): around the dense traffic's median speed (about 7 m/s on both default scenarios)
+TARGET_SPEEDS = {"stop": 0.0, "slow": 3.5, "cruise": 7.0, "fast": 10.5}
+SPEED_TAU = 0.5  # s: the speed error is closed at (error / SPEED_TAU) m/s^2, clipped to the limits
+SPEED_META_ACTIONS = [f"{lon}, {lat}" for lon in TARGET_SPEEDS for lat in LATERAL]  # index -> name
+SPEED_ACTIONS = np.array([[v, b] for v in TARGET_SPEEDS.values() for b in LATERAL.values()])  # (12, 2) m/s, a[1]
 
 
 def action_space(config: dict[str, Any]) -> spaces.Space:
     """The env's action space under `config["action"]`."""
-    if config["action"] == "discrete":
+    if config["action"] in ("discrete", "speed"):
         return spaces.Discrete(len(DISCRETE_ACTIONS))
     return spaces.Box(-1.0, 1.0, (2,), np.float32)
 
 
-def action_to_command(action: Any, config: dict[str, Any], where: str = "env") -> EgoCommand:
-    """An action (module docstring) -> `EgoCommand` (m/s^2, m/s) under `config`'s limits; ValueError for a
-    non-finite continuous action or a meta-action index out of range."""
+def action_to_command(action: Any, config: dict[str, Any], where: str = "env", speed: float = 0.0) -> EgoCommand:
+    """An action (module docstring) -> `EgoCommand` (m/s^2, m/s) under `config`'s limits; speed (m/s): the ego's
+    now, which the "speed" meta-actions steer from. ValueError for a non-finite continuous action or a
+    meta-action index out of range."""
     a = np.asarray(action)
-    if config["action"] == "discrete":
+    if config["action"] in ("discrete", "speed"):
         last = len(DISCRETE_ACTIONS) - 1
         if a.size != 1 or not (np.issubdtype(a.dtype, np.integer) or float(a.ravel()[0]).is_integer()):
             raise ValueError(f"{where}: action {action!r}: expected one meta-action index in 0..{last}")
         i = int(a.ravel()[0])
         if not 0 <= i <= last:
             raise ValueError(f"{where}: action {i}: expected a meta-action index in 0..{last}")
+        if config["action"] == "speed":
+            target, lat = SPEED_ACTIONS[i].tolist()
+            acc = min(max((target - speed) / SPEED_TAU, -float(config["max_decel"])), float(config["max_accel"]))
+            return EgoCommand(float(acc), float(lat * config["max_lateral_speed"]))
         acc, lat = DISCRETE_ACTIONS[i].tolist()
     else:
         a = a.astype(np.float64)
@@ -59,3 +74,12 @@ def action_to_command(action: Any, config: dict[str, Any], where: str = "env") -
         acc, lat = min(max(acc, -1.0), 1.0), min(max(lat, -1.0), 1.0)
     acc = acc * (config["max_accel"] if acc >= 0 else config["max_decel"])
     return EgoCommand(float(acc), float(lat * config["max_lateral_speed"]))
+
+
+def command_to_action(command: EgoCommand, config: dict[str, Any]) -> np.ndarray:
+    """The continuous Box action (2,) float32 in [-1, 1] that `action_to_command` maps to `command` under
+    `config`'s limits (clipped where the command exceeds them): how an expert planner's command is labelled."""
+    acc = float(command.acceleration)
+    a0 = acc / config["max_accel"] if acc >= 0 else acc / config["max_decel"]
+    a1 = float(command.lateral_velocity) / config["max_lateral_speed"]
+    return np.clip(np.array([a0, a1], np.float32), -1.0, 1.0)

@@ -30,18 +30,21 @@ DEFAULT_CONFIG: dict[str, Any] = {
     "max_accel": 2.5,  # m/s^2 for action[0] = +1
     "max_decel": 7.0,  # m/s^2 of braking for action[0] = -1
     "max_lateral_speed": 1.5,  # m/s for action[1] = +-1
-    "action": "continuous",  # continuous: Box(-1, 1, (2,)); discrete: Discrete(12) meta-actions (DISCRETE_ACTIONS)
+    "action": "continuous",  # continuous: Box(-1, 1, (2,)); discrete: Discrete(12) meta-actions (DISCRETE_ACTIONS);
+    # speed: Discrete(12) target-speed meta-actions (SPEED_ACTIONS)
     "flatten": True,  # observation as a 1-D vector (reshape to (K + 1, H, F)); False: the (K + 1, H, F) array
     "terminate_on_collision": True,
-    "target_speed": None,  # m/s at which the progress term is full; None: the scenario's road speed limit
+    "target_speed": 7.0,  # m/s at which the progress term is full: about the dense traffic's median speed (both
+    # default scenarios), so driving with the flow earns the full term and creeping little; None: the road's limit
     # Reward weights (`simharness.envs.reward`): per collision-free step on the road, alive + progress *
-    # min(speed made good / target_speed, 1), plus the comfort terms, each weight * min((measured / bound)^2, 1);
-    # a collision step pays its weight times steps * (alive + progress + |accel| + |jerk| + |lateral|).
-    "reward": {"alive": 0.1, "progress": 0.9, "accel": -0.05, "jerk": -0.05, "lateral": -0.05,
+    # min(speed made good / target_speed, 1), plus the comfort terms, each weight * min((measured / bound)^2, 1),
+    # plus ttc * max(1 - time-to-collision / 3 s, 0); a collision step pays its weight times
+    # steps * (alive + progress + |accel| + |jerk| + |lateral| + |ttc|).
+    "reward": {"alive": 0.1, "progress": 0.9, "accel": -0.05, "jerk": -0.05, "lateral": -0.05, "ttc": -0.3,
                "collision_at_fault": -1.0, "collision_hit": -0.5},
 }
 REACTIONS = (None, "reactive", "cut_in", "ignore")
-ACTIONS = ("continuous", "discrete")
+ACTIONS = ("continuous", "discrete", "speed")
 _POSITIVE = ("duration", "obs_range", "max_accel", "max_decel", "max_lateral_speed")
 _COUNTS = ("num_agents", "history_frames", "forecast_frames", "episodes_per_warmup")
 

@@ -176,7 +176,7 @@ class DenseTrafficEnv(gym.Env):
             self._at_fault += int(at_fault)
         on_road = ego_on_road(frame, self._sim.road)
         reward = step_reward(c["reward"], motion, self._target_step, float(c["max_lateral_speed"]), on_road,
-                             collision, self._episode_steps)
+                             collision, self._episode_steps, safe.ttc)
         terminated = bool(new_contact and c["terminate_on_collision"])
         truncated = not terminated and self._steps >= self._episode_steps
         self._done = terminated or truncated
@@ -184,7 +184,9 @@ class DenseTrafficEnv(gym.Env):
 
     def command(self, action: Any) -> EgoCommand:
         """An action -> physical `EgoCommand` (`simharness.envs.actions`); ValueError for NaN, inf or a bad index."""
-        return action_to_command(action, self.config, type(self).__name__)
+        f = self._history.now if len(self._history) else None  # the "speed" meta-actions steer from the ego's speed
+        speed = float(f.speed[f.ego]) if f is not None and f.ego >= 0 else 0.0
+        return action_to_command(action, self.config, type(self).__name__, speed)
 
     def render(self) -> np.ndarray | None:
         """rgb_array: (H, W, 3) uint8 top-down view around the ego (`simharness.envs.render`); human: shown in a

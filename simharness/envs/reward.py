@@ -4,17 +4,19 @@ Reward per step (weights ``config["reward"]``, defaults in `simharness.envs.conf
 
     collision-free:  on_road * (alive + progress * min(max(moved / (target_speed * dt), 0), 1)
                                 + accel * min((a / 4.05)^2, 1) + jerk * min((j / 8.37)^2, 1)
-                                + lateral * min((v_lat / max_lateral_speed)^2, 1))
+                                + lateral * min((v_lat / max_lateral_speed)^2, 1)
+                                + ttc * max(1 - ttc_now / 3 s, 0))
     a new contact:   collision_at_fault (or collision_hit) * steps * span,
-                     span = alive + progress + |accel| + |jerk| + |lateral|
+                     span = alive + progress + |accel| + |jerk| + |lateral| + |ttc|
 
 a, j and v_lat are what the ego did (its measured acceleration, jerk and speed across the traffic flow),
-not what it was told; the bounds are the scorecard's comfort bounds (nuPlan's). A contact is judged as
-the scorecard judges it (`ego_fault`): at fault (ran into someone, cut across into them, braked or stood
-for nothing and was hit) or hit. A collision-free step earns between alive - |comfort weights| and
-alive + progress, so ``steps * span`` exceeds the spread between any two episodes' returns: with
-collision_at_fault <= -1 any collision-free episode outscores any episode with an at-fault collision,
-whatever the other weights (signs as documented).
+not what it was told; ttc_now is its min time-to-collision (`ego_safety`, constant velocities over 3 s), so
+closing in on someone costs before the contact does; the bounds are the scorecard's comfort bounds
+(nuPlan's). A contact is judged as the scorecard judges it (`ego_fault`): at fault (ran into someone, cut
+across into them, braked or stood for nothing and was hit) or hit. A collision-free step earns between
+alive - |comfort and ttc weights| and alive + progress, so ``steps * span`` exceeds the spread between any
+two episodes' returns: with collision_at_fault <= -1 any collision-free episode outscores any episode with an
+at-fault collision, whatever the other weights (signs as documented).
 """
 
 from __future__ import annotations
@@ -138,16 +140,19 @@ def ego_fault(frames: Sequence[Frame], dt: float) -> bool:
 
 
 def step_reward(weights: dict[str, float], motion: Motion, target_step: float, max_lateral_speed: float,
-                on_road: bool, collision: str | None, steps: int) -> float:
+                on_road: bool, collision: str | None, steps: int, ttc: float = TTC_CAP) -> float:
     """The reward of one step (module docstring). target_step (m): target_speed * dt; collision: None,
-    "at_fault" or "hit" (a new contact this step); steps: steps per episode."""
+    "at_fault" or "hit" (a new contact this step); steps: steps per episode; ttc (s): the ego's min
+    time-to-collision now (`ego_safety`)."""
     w = weights
     if collision is not None:  # more than the widest spread of returns between episodes of `steps` steps
-        span = w["alive"] + w["progress"] + abs(w["accel"]) + abs(w["jerk"]) + abs(w["lateral"])
+        span = (w["alive"] + w["progress"] + abs(w["accel"]) + abs(w["jerk"]) + abs(w["lateral"])
+                + abs(w["ttc"]))
         return w["collision_" + collision] * steps * span
     if not on_road:
         return 0.0
     speed = min(max(motion.moved / target_step, 0.0), 1.0)
     return (w["alive"] + w["progress"] * speed + w["accel"] * min((motion.accel / ACCEL_BOUND) ** 2, 1.0)
             + w["jerk"] * min((motion.jerk / JERK_BOUND) ** 2, 1.0)
-            + w["lateral"] * min((motion.lateral / max_lateral_speed) ** 2, 1.0))
+            + w["lateral"] * min((motion.lateral / max_lateral_speed) ** 2, 1.0)
+            + w["ttc"] * max(1.0 - ttc / TTC_HORIZON, 0.0))

@@ -91,6 +91,29 @@ def time_to_collision(
     return ttc
 
 
+def ttc_relevant(xy: np.ndarray, heading: np.ndarray, speed: np.ndarray, valid: np.ndarray, ego: int,
+                 behind_deg: float = 150.0, stopped: float = 5e-3) -> np.ndarray:
+    """Which agents' time-to-collision counts, as nuPlan's TTC metric: agents not behind the ego (the bearing of
+    their centre off the ego's heading at most `behind_deg`: a lane-less road, so beside counts as ahead), while
+    the ego moves (speed above `stopped` m/s). Closing in on an ego from behind, or on one standing, is not a near
+    miss of the ego's making.
+
+    xy (N, T, 2) m, heading (N, T) rad (the ego's row used), speed (N, T) m/s, valid (N, T) -> (N, T) bool;
+    the ego row is False.
+    """
+    out = np.zeros(valid.shape, bool)
+    if ego < 0:
+        return out
+    rel = xy - xy[ego][None]  # (N, T, 2)
+    fwd = np.stack([np.cos(heading[ego]), np.sin(heading[ego])], -1)  # (T, 2)
+    along = np.einsum("ntd,td->nt", rel, fwd)
+    dist = np.linalg.norm(rel, axis=-1)
+    not_behind = along >= -np.cos(np.deg2rad(180.0 - behind_deg)) * dist
+    out = valid & valid[ego][None] & not_behind & (speed[ego] > stopped)[None]
+    out[ego] = False
+    return out
+
+
 def near_misses(ttc: np.ndarray, contact: np.ndarray, valid: np.ndarray, threshold: float = 1.5) -> np.ndarray:
     """Near-miss events: spells of TTC < threshold (per agent) that never reach contact.
 
