@@ -6,8 +6,8 @@ planning step the observation an SB3 policy would see (built by `PolicyPlanner`,
 and in `simharness closedloop --planner`) is recorded with the expert's command, turned into the env's
 continuous Box action (`command_to_action`, the inverse of the env's action map).
 
-- round 0: the expert drives (behaviour cloning data);
-- rounds 1..R (DAgger): the learned policy drives (round r hands each step to the expert with probability
+- iteration 0: the expert drives (behaviour cloning data);
+- iterations 1..R (DAgger): the learned policy drives (iteration r hands each step to the expert with probability
   --beta ** r), the expert labels every state it reaches; the data are aggregated and the policy refitted.
 
 The policy is an SB3 `PPO` actor-critic (MlpPolicy, or MultiInputPolicy with --predictor's forecast
@@ -15,13 +15,14 @@ observation); its Gaussian mean is fitted to the expert's actions by squared err
 `model.policy`), the acceleration's by an expectile (--caution) that leans to braking when below 0.5;
 --straight labels every lateral speed 0 (the policy imitates the planner's acceleration only).
 Writes --policy (an SB3 zip that `simharness closedloop SCENARIO --planner PATH.zip` drives) and beside it a
-JSON note (command, seed, samples per round, wall time, versions, env config), each round's policy as
-RUN/roundR.zip (+ .json), and RUN/rounds.json with each round's driving (collision share, progress) on its
+JSON note (command, seed, samples per iteration, wall time, versions, env config), each iteration's policy as
+RUN/iterationR.zip (+ .json), and RUN/iterations.json with each iteration's driving (collision share, progress) on its
 training seeds.
 
 Usage: OMP_NUM_THREADS=1 python bench/train_imitation.py [--scenarios highway_mixed_dense] [--episodes 16]
-          [--rounds 3] [--beta 0.5] [--duration 30] [--caution 0.5] [--straight] [--predictor const-vel]
-          [--seed 0] [--workers 2] [--run runs/imitation] [--policy RUN/policy.zip] [--plot FIGURE LABEL=ROUNDS.json]
+          [--iterations 3] [--beta 0.5] [--duration 30] [--caution 0.5] [--straight] [--predictor const-vel]
+          [--seed 0] [--workers 2] [--run runs/imitation] [--policy RUN/policy.zip]
+          [--plot FIGURE LABEL=ITERATIONS.json]
 """
 
 from __future__ import annotations
@@ -203,23 +204,23 @@ def save(model: Any, path: Path, note: dict[str, Any]) -> None:
     path.with_suffix(".json").write_text(json.dumps(note, indent=2) + "\n")
 
 
-def plot_rounds(runs: dict[str, list[dict[str, Any]]], path: Path) -> None:
-    """Collision share and mean progress of each round's training episodes, one line per run."""
+def plot_iterations(runs: dict[str, list[dict[str, Any]]], path: Path) -> None:
+    """Collision share and mean progress of each iteration's training episodes, one line per run."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, (left, right) = plt.subplots(1, 2, figsize=(10, 3.4))
-    for label, rounds in runs.items():
-        x = [r["round"] for r in rounds]
-        left.plot(x, [r["collision_share"] for r in rounds], "o-", label=label)
-        right.plot(x, [r["mean_progress_m"] for r in rounds], "o-", label=label)
+    for label, iterations in runs.items():
+        x = [r["iteration"] for r in iterations]
+        left.plot(x, [r["collision_share"] for r in iterations], "o-", label=label)
+        right.plot(x, [r["mean_progress_m"] for r in iterations], "o-", label=label)
     left.set_ylim(0, 1)
-    left.set_ylabel("collision share of the round's episodes")
+    left.set_ylabel("collision share of the iteration's episodes")
     right.set_ylabel("progress per episode (m)")
     for ax in (left, right):
-        ax.set_xlabel("round (0: the expert drives; then the policy, DAgger)")
+        ax.set_xlabel("iteration (0: the expert drives; then the policy, DAgger)")
     left.legend(fontsize=8)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -227,7 +228,7 @@ def plot_rounds(runs: dict[str, list[dict[str, Any]]], path: Path) -> None:
     plt.close(fig)
 
 
-def note(a: argparse.Namespace, scenarios: list[str], config: dict[str, Any], rounds: list[dict[str, Any]],
+def note(a: argparse.Namespace, scenarios: list[str], config: dict[str, Any], iterations: list[dict[str, Any]],
          samples: int, wall: float) -> dict[str, Any]:
     """The JSON note beside a policy: how it was made (`load_policy_planner` reads its "env_config")."""
     import gymnasium
@@ -240,8 +241,8 @@ def note(a: argparse.Namespace, scenarios: list[str], config: dict[str, Any], ro
                 "continuous actions" + (f", {a.predictor} forecast observation" if a.predictor else ""),
         "env": "simharness/HighwayDense-v0",
         "command": "OMP_NUM_THREADS=1 python " + " ".join(sys.argv),
-        "seed": a.seed, "scenarios": scenarios, "training_seeds": f"0-{min(len(rounds) * a.episodes, 100) - 1}",
-        "episode_s": a.duration, "rounds": rounds, "samples": samples,
+        "seed": a.seed, "scenarios": scenarios, "training_seeds": f"0-{min(len(iterations) * a.episodes, 100) - 1}",
+        "episode_s": a.duration, "iterations": iterations, "samples": samples,
         "trained_steps": samples,  # closed-loop steps labelled by the expert (the data the policy was fitted on)
         "epochs": a.epochs, "caution": a.caution, "straight": a.straight,
         "lr": a.lr, "batch": a.batch, "net_arch": NET_ARCH, "workers": a.workers, "wall_s": round(wall, 1),
@@ -254,12 +255,13 @@ def note(a: argparse.Namespace, scenarios: list[str], config: dict[str, Any], ro
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--scenarios", default="highway_mixed_dense", help="comma list of training scenarios")
-    p.add_argument("--episodes", type=int, default=16, help="episodes per scenario per round")
-    p.add_argument("--rounds", type=int, default=3, help="DAgger rounds after the expert's (behaviour cloning) round")
-    p.add_argument("--beta", type=float, default=0.5, help="round r: share beta ** r of steps the expert drives")
+    p.add_argument("--episodes", type=int, default=16, help="episodes per scenario per iteration")
+    p.add_argument("--iterations", type=int, default=3,
+                   help="DAgger iterations after the expert's (behaviour cloning) one")
+    p.add_argument("--beta", type=float, default=0.5, help="iteration r: share beta ** r of steps the expert drives")
     p.add_argument("--duration", type=float, default=30.0, help="s per training episode (0: the scenario's)")
     p.add_argument("--predictor", default=None, help="add the forecast observation from this predictor")
-    p.add_argument("--epochs", type=int, default=30, help="passes over the aggregated data per round")
+    p.add_argument("--epochs", type=int, default=30, help="passes over the aggregated data per iteration")
     p.add_argument("--caution", type=float, default=0.5, help="expectile of the acceleration fit (0.5: MSE; "
                    "lower leans to braking)")
     p.add_argument("--straight", action="store_true", help="label lateral speed 0: imitate the acceleration only")
@@ -270,11 +272,11 @@ def main() -> None:
     p.add_argument("--run", type=Path, default=ROOT / "runs" / "imitation")
     p.add_argument("--policy", type=Path, default=None, help="default RUN/policy.zip (copy it to "
                    "simharness/policies/ppo_highway_dense.zip, with its .json, to ship it)")
-    p.add_argument("--plot", nargs="+", metavar=("FIGURE", "LABEL=ROUNDS.json"),
-                   help="only plot the rounds.json of several runs into FIGURE, then exit")
+    p.add_argument("--plot", nargs="+", metavar=("FIGURE", "LABEL=ITERATIONS.json"),
+                   help="only plot the iterations.json of several runs into FIGURE, then exit")
     a = p.parse_args()
     if a.plot:
-        plot_rounds({x.partition("=")[0]: json.loads(Path(x.partition("=")[2]).read_text()) for x in a.plot[1:]},
+        plot_iterations({x.partition("=")[0]: json.loads(Path(x.partition("=")[2]).read_text()) for x in a.plot[1:]},
                     Path(a.plot[0]))
         return
     a.policy = a.policy or a.run / "policy.zip"
@@ -293,14 +295,14 @@ def main() -> None:
     a.run.mkdir(parents=True, exist_ok=True)
     obs: list[Any] = []
     act: list[np.ndarray] = []
-    rounds = []
+    iterations = []
     t0 = time.time()
     with ProcessPoolExecutor(a.workers, mp_context=get_context("spawn")) as pool:
-        for r in range(a.rounds + 1):
-            # the next training seeds each round, cycling through 0-99 (the policy drives them differently)
+        for r in range(a.iterations + 1):
+            # the next training seeds each iteration, cycling through 0-99 (the policy drives them differently)
             seeds = [(r * a.episodes + i) % 100 for i in range(a.episodes)]
-            beta = 1.0 if r == 0 else a.beta ** r  # the expert's share of the steps decays each round
-            student = str(a.run / f"round{r - 1}.zip") if r else None
+            beta = 1.0 if r == 0 else a.beta ** r  # the expert's share of the steps decays each iteration
+            student = str(a.run / f"iteration{r - 1}.zip") if r else None
             jobs = [{"scenario": s, "seed": seed, "duration": a.duration, "config": config, "student": student,
                      "beta": beta, "straight": a.straight} for s in scenarios for seed in seeds]
             done = list(pool.map(rollout, jobs))
@@ -308,20 +310,21 @@ def main() -> None:
                 obs += d["obs"]
                 act.append(d["act"])
             loss = fit(model, stack(obs), np.concatenate(act), a.epochs, a.lr, a.batch, a.seed + r, a.caution)
-            row = {"round": r, "driver": "expert" if r == 0 else f"policy (expert share {beta:.3f})",
+            row = {"iteration": r, "driver": "expert" if r == 0 else f"policy (expert share {beta:.3f})",
                    "episodes": len(done), "samples": len(obs), "train_loss": loss,
                    "collision_share": float(np.mean([d["collided"] for d in done])),
                    "at_fault_share": float(np.mean([d["at_fault"] for d in done])),
                    "mean_progress_m": float(np.mean([d["progress_m"] for d in done])),
                    "wall_s": round(time.time() - t0, 1)}
-            rounds.append(row)
+            iterations.append(row)
             print(json.dumps(row), flush=True)
-            # every round's policy, loadable with its note: a run stopped early still leaves one
-            save(model, a.run / f"round{r}.zip", note(a, scenarios, config, rounds, len(obs), time.time() - t0))
+            # every iteration's policy, loadable with its note: a run stopped early still leaves one
+            save(model, a.run / f"iteration{r}.zip", note(a, scenarios, config, iterations, len(obs), time.time() - t0))
     times = os.times()  # the workers' CPU time is counted once the pool has closed
     cpu = times.user + times.system + times.children_user + times.children_system
-    (a.run / "rounds.json").write_text(json.dumps(rounds, indent=2) + "\n")
-    save(model, a.policy, {**note(a, scenarios, config, rounds, len(obs), time.time() - t0), "cpu_s": round(cpu, 1)})
+    (a.run / "iterations.json").write_text(json.dumps(iterations, indent=2) + "\n")
+    meta = note(a, scenarios, config, iterations, len(obs), time.time() - t0)
+    save(model, a.policy, {**meta, "cpu_s": round(cpu, 1)})
     print(f"{len(obs)} samples, {time.time() - t0:.0f} s wall, {cpu:.0f} CPU-s -> {a.policy}")
 
 

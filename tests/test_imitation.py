@@ -101,10 +101,10 @@ def test_the_script_writes_a_policy_the_closed_loop_loads(tmp_path):
     from simharness.policy_planner import PolicyPlanner, load_policy_planner
 
     run = tmp_path / "run"
-    subprocess.run([sys.executable, str(ROOT / "bench" / "train_imitation.py"), "--episodes", "1", "--rounds", "1",
+    subprocess.run([sys.executable, str(ROOT / "bench" / "train_imitation.py"), "--episodes", "1", "--iterations", "1",
                     "--duration", "6", "--epochs", "2", "--workers", "1", "--run", str(run)], check=True, cwd=ROOT,
                    capture_output=True)
     note = json.loads((run / "policy.json").read_text())
-    assert [r["round"] for r in note["rounds"]] == [0, 1] and note["samples"] == note["trained_steps"] > 0
-    assert note["cpu_s"] > 0 and (run / "round0.zip").is_file()
+    assert [r["iteration"] for r in note["iterations"]] == [0, 1] and note["samples"] == note["trained_steps"] > 0
+    assert note["cpu_s"] > 0 and (run / "iteration0.zip").is_file()
     assert isinstance(load_policy_planner(run / "policy.zip"), PolicyPlanner)
