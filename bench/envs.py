@@ -7,7 +7,7 @@ directly (`Simulator.step` with a constant ego command: no observation, reward o
 the share `raw time / env time` says what the env layer costs. Rates are per CPU-second (this process
 plus the env's SUMO worker: a shared machine's load does not count; wall-clock rates are in the JSON),
 and the loops run interleaved in chunks so the rest of a busy machine affects them alike. Also the env
-with ``episodes_per_warmup = 1`` (every reset warms the traffic up from empty, as before warm resets), and
+with ``episodes_per_warmup = 1`` (every reset warms the traffic up from empty), and
 the env loop's share of CPU spent in reset() with the step-only rate and share (resets left out), and what
 the env layer proper costs on top of its own simulator: step() CPU beyond the simulator's step() inside it
 (observation, reward, ego safety, gym wrappers; the simulator under a random, weaving ego works harder than
@@ -16,9 +16,11 @@ in the raw loop's cruise, which this leaves out).
 With --reward-table: the default reward's return under three fixed policies (full braking, full throttle,
 holding speed), 10 episodes each per env (reset(seed=s) for s in 0..9): mean return, collisions, steps.
 
-Usage: python bench/envs.py [--steps 1000] [--rounds 5] [--env ID] [--old REV] [--reward-table]
-  --old REV  also measure the env of git revision REV (checked out into a temporary worktree, run in a
-             subprocess after this run's loops): its env-steps/s and env layer, for a before/after table.
+Usage: python bench/envs.py [--steps 1000] [--iterations 5] [--env ID] [--against DIR] [--reward-table]
+  --against DIR  also compare with the checkout at DIR (e.g. `git archive REV | tar -x -C DIR`): one worker
+                 process per checkout (DIR's simharness, default config, this file's loop) runs the same random
+                 policy, the two taking turns chunk by chunk; the table gives both env-steps/s, their ratio and
+                 each one's CPU per step() split into the simulator's step() and the rest.
 Each loop runs 20 untimed steps first (a fresh checkout compiles its numba kernels on the first calls).
 """
 
@@ -29,7 +31,6 @@ import json
 import os
 import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -119,8 +120,8 @@ def cpu_seconds(env: object = None) -> float:
     return total
 
 
-def measure(steps: int, rounds: int, env_ids: tuple[str, ...] = ENVS, variants: bool = True) -> dict:
-    """Env and raw loops interleaved in `rounds` chunks (a loaded machine slows both alike); rates over all."""
+def measure(steps: int, iterations: int, env_ids: tuple[str, ...] = ENVS, variants: bool = True) -> dict:
+    """Env and raw loops interleaved in `iterations` chunks (a loaded machine slows both alike); rates over all."""
     out = {}
     for env_id in env_ids:
         loops = {"env": EnvLoop(env_id, {})}
@@ -133,13 +134,13 @@ def measure(steps: int, rounds: int, env_ids: tuple[str, ...] = ENVS, variants: 
             loop.resets, loop.reset_cpu, loop.sim_cpu = 0, 0.0, 0.0
         wall = dict.fromkeys([*loops, "raw"], 0.0)
         cpu = dict(wall)
-        chunk = max(1, steps // rounds)
-        for _ in range(rounds):
+        chunk = max(1, steps // iterations)
+        for _ in range(iterations):
             for k, loop in (("raw", raw), *loops.items()):
                 w, c = loop.run(chunk)
                 wall[k] += w
                 cpu[k] += c
-        n = chunk * rounds
+        n = chunk * iterations
         rec = {"raw_frames_per_s": n / cpu["raw"], "raw_frames_per_wall_s": n / wall["raw"]}
         for k in loops:
             rec[f"{k}_steps_per_s"] = n / cpu[k]
@@ -203,54 +204,98 @@ def print_reward_table(table: dict[str, dict[str, dict[str, float]]]) -> None:
                   f"{r['collided']:8.0%} {r['steps']:6.1f} {r['progress_m']:10.1f}")
 
 
-def measure_old(rev: str, steps: int, rounds: int, env_ids: tuple[str, ...] = ENVS) -> dict[str, dict]:
-    """`measure` (without variants) of revision `rev` (its own simharness, default config) in a subprocess."""
-    root = Path(__file__).resolve().parents[1]
-    with tempfile.TemporaryDirectory(prefix="simharness_old_") as tmp:
-        wt = Path(tmp) / "wt"
-        subprocess.run(["git", "-C", str(root), "worktree", "add", "--detach", str(wt), rev], check=True,
-                       capture_output=True)
-        try:
-            code = ("import json, sys; sys.path.insert(0, sys.argv[1]); from envs_bench import measure; "
-                    f"print(json.dumps(measure({steps}, {rounds}, {tuple(env_ids)!r}, variants=False)))")
-            (Path(tmp) / "envs_bench.py").write_text(Path(__file__).read_text())
-            env = {**os.environ, "PYTHONPATH": str(wt)}
-            proc = subprocess.run([sys.executable, "-c", code, tmp], capture_output=True, text=True, env=env,
-                                  cwd=wt, check=True)
-            return json.loads(proc.stdout.strip().splitlines()[-1])
-        finally:
-            subprocess.run(["git", "-C", str(root), "worktree", "remove", "--force", str(wt)], capture_output=True)
+def serve(env_id: str) -> None:
+    """Worker of `compare`: one `EnvLoop` of the simharness on PYTHONPATH; each line n read from stdin runs n steps
+    and is answered with one line [CPU s, of which in reset(), of which in the simulator's step() within step()]."""
+    import simharness
+
+    loop = EnvLoop(env_id, {})
+    loop.run(20)  # untimed: compiled kernels
+    print(json.dumps(str(Path(simharness.__file__).resolve().parents[1])), flush=True)
+    for line in sys.stdin:
+        loop.reset_cpu, loop.sim_cpu = 0.0, 0.0
+        cpu = loop.run(int(line))[1]
+        print(json.dumps([cpu, loop.reset_cpu, loop.sim_cpu]), flush=True)
+    loop.env.close()
+
+
+def compare(other: Path, steps: int, iterations: int, env_ids: tuple[str, ...] = ENVS) -> dict[str, dict]:
+    """Env-steps per CPU-second of this checkout's env and of the checkout at `other`, each in a worker process
+    (`serve`), the two stepping in turn in `iterations` chunks; their ratio (this / other); and each one's CPU per
+    step() (resets left out) split into the simulator's step() and the rest (the env layer), in microseconds."""
+    here = Path(__file__).resolve().parents[1]
+    out = {}
+    for env_id in env_ids:
+        workers = {}
+        for name, root in (("this", here), ("other", other.resolve())):
+            proc = subprocess.Popen([sys.executable, str(Path(__file__).resolve()), "--serve", env_id], cwd=root,
+                                    env={**os.environ, "PYTHONPATH": str(root)}, stdin=subprocess.PIPE,
+                                    stdout=subprocess.PIPE, text=True)
+            workers[name] = proc
+            found = json.loads(proc.stdout.readline() or "null")
+            if found != str(root):  # the worker must run that checkout's simharness, not an installed one
+                for w in workers.values():
+                    w.kill()
+                    w.wait()
+                raise SystemExit(f"--against: the worker for {root} failed or imported simharness from {found}")
+        cpu = {name: [0.0, 0.0, 0.0] for name in workers}  # CPU s: all, in reset(), in the simulator within step()
+        chunk = max(1, steps // iterations)
+        for _ in range(iterations):
+            for name, proc in workers.items():
+                proc.stdin.write(f"{chunk}\n")
+                proc.stdin.flush()
+                cpu[name] = [a + b for a, b in zip(cpu[name], json.loads(proc.stdout.readline()), strict=True)]
+        for proc in workers.values():
+            proc.stdin.close()
+            proc.wait()
+        n = chunk * iterations
+        rec = {"ratio": cpu["other"][0] / cpu["this"][0]}
+        for name, (total, reset, sim) in cpu.items():
+            rec[f"{name}_steps_per_s"] = n / total
+            rec[f"{name}_sim_us_per_step"] = 1e6 * sim / n
+            rec[f"{name}_layer_us_per_step"] = 1e6 * (total - reset - sim) / n
+        out[env_id] = rec
+    return out
 
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--steps", type=int, default=1000, help="env steps (and raw frames) per loop")
-    p.add_argument("--rounds", type=int, default=5, help="interleaved chunks")
-    p.add_argument("--old", default=None, help="git revision to compare with")
+    p.add_argument("--iterations", type=int, default=5, help="interleaved chunks")
+    p.add_argument("--against", type=Path, default=None, help="another checkout's directory to compare with")
     p.add_argument("--env", choices=ENVS, default=None, help="one env only")
     p.add_argument("--reward-table", action="store_true", help="fixed policies' returns instead of speeds")
     p.add_argument("--episodes", type=int, default=10, help="episodes per policy for --reward-table")
+    p.add_argument("--serve", choices=ENVS, default=None, help=argparse.SUPPRESS)  # a `compare` worker
     a = p.parse_args()
+    if a.serve:
+        serve(a.serve)
+        return
     ids = (a.env,) if a.env else ENVS
     if a.reward_table:
         table = reward_table(a.episodes, ids)
         print_reward_table(table)
         print(json.dumps(table))
         return
-    res = measure(a.steps, a.rounds, ids)
-    old = measure_old(a.old, a.steps, a.rounds, ids) if a.old else {}
+    res = measure(a.steps, a.iterations, ids)
     print(f"{'env':16s} {'raw fr/s':>9s} {'env st/s':>9s} {'share':>6s} {'in reset':>8s} {'step-only st/s':>15s} "
-          f"{'share':>6s} {'layer on sim':>12s} {'cold-reset st/s':>16s} {'share':>6s}"
-          + (f" {'old st/s':>9s} {'old layer':>9s}" if old else ""))
+          f"{'share':>6s} {'layer on sim':>12s} {'cold-reset st/s':>16s} {'share':>6s}")
     for k, r in res.items():
-        line = (f"{k:16s} {r['raw_frames_per_s']:9.0f} {r['env_steps_per_s']:9.0f} {r['env_share_of_raw']:6.0%} "
-                f"{r['env_reset_cpu_share']:8.0%} {r['env_step_only_per_s']:15.0f} "
-                f"{r['env_step_only_share_of_raw']:6.0%} {r['env_layer_on_top_of_sim']:12.0%} "
-                f"{r['env_cold_resets_steps_per_s']:16.0f} {r['env_cold_resets_share_of_raw']:6.0%}")
-        if k in old:
-            line += f" {old[k]['env_steps_per_s']:9.0f} {old[k]['env_layer_on_top_of_sim']:9.0%}"
-        print(line)
-    print(json.dumps({"now": res, "old": old, "steps": a.steps, "rounds": a.rounds}))
+        print(f"{k:16s} {r['raw_frames_per_s']:9.0f} {r['env_steps_per_s']:9.0f} {r['env_share_of_raw']:6.0%} "
+              f"{r['env_reset_cpu_share']:8.0%} {r['env_step_only_per_s']:15.0f} "
+              f"{r['env_step_only_share_of_raw']:6.0%} {r['env_layer_on_top_of_sim']:12.0%} "
+              f"{r['env_cold_resets_steps_per_s']:16.0f} {r['env_cold_resets_share_of_raw']:6.0%}")
+    against = compare(a.against, a.steps, a.iterations, ids) if a.against else {}
+    if against:
+        print(f"\nagainst {a.against}: env-steps per CPU-second in turn in worker processes, ratio this / other, "
+              "and CPU per step() (resets left out): the simulator's step() and the rest (env layer, action sampling)")
+        print(f"{'env':16s} {'this':>7s} {'other':>7s} {'ratio':>6s} {'this: sim us':>12s} {'layer us':>8s} "
+              f"{'other: sim us':>13s} {'layer us':>8s}")
+        for k, r in against.items():
+            print(f"{k:16s} {r['this_steps_per_s']:7.0f} {r['other_steps_per_s']:7.0f} {r['ratio']:6.2f} "
+                  f"{r['this_sim_us_per_step']:12.0f} {r['this_layer_us_per_step']:8.0f} "
+                  f"{r['other_sim_us_per_step']:13.0f} {r['other_layer_us_per_step']:8.0f}")
+    print(json.dumps({"now": res, "against": against, "steps": a.steps, "iterations": a.iterations}))
 
 
 if __name__ == "__main__":

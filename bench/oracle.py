@@ -4,7 +4,7 @@ Each forecast the oracle makes during an episode is compared with what the agent
 same episode (the loop's online error). Printed per scenario x reaction: mean online ADE and FDE
 (m; the target is < 0.05 m), the worst episode's, the oracle's branches / iterations / cycles /
 inexact forecasts (blends served where no fixed point exists) / mismatches per episode, wall seconds per
-episode and simulated seconds per wall second (loop only; target >= 2x real time on one core).
+episode and simulated seconds per wall second (loop only; target >= 5x real time on one core on SUMO).
 
     .venv/bin/python bench/oracle.py                          # 10 seeds x 60 s (the results page's figures)
     .venv/bin/python bench/oracle.py --seeds 0-2 --duration 20  # a quick look

@@ -112,7 +112,8 @@ class EventSpec:
         "into the ego's band; merge: a slow agent joins from the edge into the ego's band; turn_across (sumo "
         "backend): an oncoming agent turns across the ego's path on a quarter circle")
     actor: str = _f("", "AgentType of the actor; empty: truck, motorcycle, pedestrian, bus, rickshaw, car by kind")
-    at: float = _f(2.0, "seconds after warm-up at which the actor is placed (skipped if the ego is absent)",
+    at: float = _f(2.0, "seconds after warm-up at which the actor is placed (`lead` s earlier with a lead; "
+                   "skipped if the ego is absent)",
                    0.0, 3600.0)
     ahead: float = _f(10.0, "m from the ego's front to the actor's rear at placement (negative: beside/behind)",
                       -50.0, 200.0)
@@ -121,7 +122,10 @@ class EventSpec:
     side: float = _f(0.0, "m from the ego's centre line to the actor's at placement, + left (step_out, "
                      "pull_out: which kerb, by sign; 0 = right)", -20.0, 20.0)
     speed: float = _f(-1.0, "actor speed at placement (m/s); negative: the ego's speed", -1.0, 45.0)
-    delay: float = _f(1.0, "s after placement at which the manoeuvre starts", 0.0, 600.0)
+    delay: float = _f(1.0, "s after `at` at which the manoeuvre starts", 0.0, 600.0)
+    lead: float = _f(0.0, "s before `at` at which the actor enters, further ahead by what the ego (at its speed "
+                     "then) closes on it in that time; it holds its speed and line until the manoeuvre, so it is "
+                     "in view before it acts (0: it appears at `at`)", 0.0, 60.0)
     decel: float = _f(6.0, "m/s^2 of braking during the manoeuvre (brake, cut_in)", 0.0, 12.0)
     accel: float = _f(1.5, "m/s^2 of acceleration towards end_speed (pull_out, merge)", 0.0, 6.0)
     end_speed: float = _f(0.0, "m/s the actor brakes or accelerates to during the manoeuvre", 0.0, 45.0)
@@ -202,6 +206,9 @@ class ScenarioSpec:
         d.pop("path")
         if not d["events"]:  # scenarios without events keep the config hash they had before events existed
             d.pop("events")
+        for ev in d.get("events", []):  # and events without a lead the hash they had before leads existed
+            if ev["lead"] == 0:
+                ev.pop("lead")
         if self.backend != "replay":  # simulated scenarios keep their config hash too
             d.pop("data")
             d.pop("replay")
@@ -281,6 +288,9 @@ def parse_scenario(data: dict[str, Any], where: str) -> ScenarioSpec:
         except UserError:
             raise UserError(f"{where}: key 'events[{i}].actor': unknown agent type {ev.actor!r}; "
                             f"expected one of {', '.join(LABELS)}") from None
+        if ev.lead > ev.at + 1e-9:
+            raise UserError(f"{where}: key 'events[{i}].lead': {ev.lead:g} s before at = {ev.at:g} s is before "
+                            "the episode starts; expected lead <= at")
         if ev.kind in SUMO_ONLY_EVENTS and spec.backend != "sumo":
             raise UserError(f"{where}: key 'events[{i}].kind': {ev.kind!r} runs on the sumo backend only; "
                             f"expected one of {', '.join(k for k in EVENT_KINDS if k not in SUMO_ONLY_EVENTS)}")

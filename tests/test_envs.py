@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import functools
+import importlib.util
 import subprocess
 import sys
 import warnings
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -487,3 +489,17 @@ def test_reward_gap_is_safety_min_gap_bit_for_bit():
                       speed=np.zeros(n, np.float32), length=length.astype(np.float32),
                       width=width.astype(np.float32), ego=e)
         assert ego_safety(frame).gap == min(float(ref.min()), GAP_CAP)
+
+
+def test_speed_bench_compares_two_checkouts_in_turn(tmp_path):
+    """bench/envs.py --against: both checkouts' envs step in worker processes; a directory without simharness is
+    refused rather than measured with the installed one."""
+    root = Path(__file__).resolve().parents[1]
+    spec = importlib.util.spec_from_file_location("envs_bench", root / "bench" / "envs.py")
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    rec = bench.compare(root, 4, 2, ("HighwayDense-v0",))["HighwayDense-v0"]
+    assert rec["ratio"] > 0 and rec["this_steps_per_s"] > 0 and rec["other_steps_per_s"] > 0
+    assert rec["this_sim_us_per_step"] > 0 and np.isfinite(rec["other_layer_us_per_step"])
+    with pytest.raises(SystemExit, match="imported simharness from"):
+        bench.compare(tmp_path, 4, 2, ("HighwayDense-v0",))

@@ -26,7 +26,7 @@ def _spec(*events: dict):
 def test_schema_lists_every_event_key_and_defaults():
     text = describe_schema()
     assert "[[events]]" in text
-    for key in ("kind", "actor", "at", "ahead", "ahead_time", "side", "speed", "delay", "decel", "accel",
+    for key in ("kind", "actor", "at", "ahead", "ahead_time", "side", "speed", "delay", "lead", "decel", "accel",
                 "end_speed", "lateral_speed", "target"):
         assert f"events.{key} = " in text
     spec = _spec({"kind": "brake"})
@@ -164,3 +164,29 @@ def test_pull_out_of_a_two_wheeler_starts_at_the_kerb_and_swerves_onto_the_ego_l
     assert vy.max() == pytest.approx(3.2, abs=0.05)  # sideways at lateral_speed (under 0.8 x its speed)
     assert np.all(vy <= 0.8 * m[k:-1, 2] + 0.05)
     assert m[-1, 1] == pytest.approx(e[k + 1, 1], abs=1.0) and m[-1, 2] == pytest.approx(7.0, abs=1e-3)
+
+
+def test_a_lead_places_the_actor_earlier_and_further_ahead_holding_it_until_its_manoeuvre():
+    """With lead L the actor enters L s before `at`, L x (ego speed - its speed) further ahead, and still
+    starts its manoeuvre `delay` s after `at`; without a lead it enters at `at`, as before."""
+    event = {"kind": "pull_out", "actor": "motorcycle", "at": 3.0, "ahead": 0.0, "ahead_time": 0.5,
+             "side": -1.0, "speed": 4.0, "delay": 0.4, "accel": 2.0, "end_speed": 7.0, "lateral_speed": 3.2}
+    for lead in (0.0, 2.0):  # no background motorcycles: the first new one is the actor
+        spec = parse_scenario({**BASE, "demand": {"car": 300.0}, "events": [{**event, "lead": lead}]}, "t.toml")
+        _, frames = _run(spec)
+        moto = _new_actor(frames, AgentType.MOTORCYCLE)
+        m, e = _track(frames, moto), _track(frames, "ego")
+        k = int(np.flatnonzero(np.isfinite(m[:, 0]))[0])
+        t = np.array([f.t for f in frames])
+        assert t[k] == pytest.approx(3.2 - lead)  # the first recorded frame after at - lead
+        v = e[k - 1, 2]  # centre gap: half lengths + ahead_time x v + the lead's closing, less 0.2 s of closing
+        assert m[k, 0] - e[k, 0] == pytest.approx(3.25 + 0.5 * v + (lead - 0.2) * (v - 4.0), abs=1.0)
+        moves = np.flatnonzero(np.abs(np.diff(m[k:, 1])) > 1e-6)
+        assert t[k + moves[0] + 1] == pytest.approx(3.6, abs=0.21)  # swerves delay s after `at`, lead or not
+    assert spec.config_hash() != _spec(event).config_hash()
+    assert "lead" not in _spec(event).to_dict()["events"][0]  # a lead-free event keeps its old hash
+
+
+def test_a_lead_longer_than_at_is_refused_in_one_line():
+    with pytest.raises(UserError, match=r"events\[0\].lead"):
+        _spec({"kind": "brake", "at": 1.0, "lead": 2.0})

@@ -51,14 +51,18 @@ def test_every_sumo_stress_scenario_loads_with_events():
 
 def test_pedestrian_runs_out_between_two_stopped_buses():
     frames = _frames("sumo_ped_between_buses", 6.0)
+    spec = load_scenario("stress/sumo_ped_between_buses")
+    event = spec.events[0]
     t, ped, _ = _track(frames, "ev0.0")
     _, bus_behind, _ = _track(frames, "ev0.1")
     _, bus_ahead, _ = _track(frames, "ev1.0")
-    assert t.size and abs(t[0] - 3.2) < 0.11  # placed at 3 s: first recorded in the next frame
+    placed = event.at - event.lead
+    assert t.size and abs(t[0] - (placed + 0.2)) < 0.11  # first recorded in the frame after its placement
     assert all(f.ego >= 0 for f in frames if f.t >= t[0])
     assert np.ptp(bus_behind, axis=0).max() < 1e-3 and np.ptp(bus_ahead, axis=0).max() < 1e-3  # they stand
     assert bus_behind[0, 0] < ped[0, 0] < bus_ahead[0, 0]  # the pedestrian between them (road runs +x)
-    assert np.allclose(ped[:4, 1], ped[0, 1])  # stands 1 s ...
+    stands = int(round((event.lead + event.delay) * spec.record_hz)) - 1
+    assert np.allclose(ped[:stands, 1], ped[0, 1]) and ped[stands + 2, 1] > ped[0, 1]  # stands until it runs ...
     assert abs(ped[0, 0] - ped[-1, 0]) < 1e-3 and ped[-1, 1] - ped[0, 1] > 3.0  # ... then runs across, leftwards
 
 

@@ -22,7 +22,7 @@ from simharness.envs.reward import (
     FAULT_FRAMES,
     GAP_CAP,
     TTC_CAP,
-    box_frame,
+    box_heading,
     ego_fault,
     ego_motion,
     ego_on_road,
@@ -138,7 +138,7 @@ class DenseTrafficEnv(gym.Env):
         prev = self._history.frames[-2]
         self._prev_acc = (float(frame.speed[frame.ego]) - float(prev.speed[prev.ego])) / self.spec_.dt
         self._steps = 0
-        self._contact_prev = ego_safety(box_frame(frame)).contact  # an overlap the simulator placed is not new
+        self._contact_prev = ego_safety(frame, heading=box_heading(frame)).contact  # a placed overlap is not new
         self._collisions = 0
         self._at_fault = 0
         self._progress = 0.0
@@ -161,7 +161,7 @@ class DenseTrafficEnv(gym.Env):
             obs, _ = self._observation()
             return obs, 0.0, True, False, self._info(TTC_CAP, GAP_CAP)
         offsets = ego_offsets(frame)  # shared by the safety terms and the observation
-        safe = ego_safety(box_frame(frame), offsets)
+        safe = ego_safety(frame, offsets, box_heading(frame))
         obs, near = self._observation(offsets[2])
         motion = ego_motion(prev, frame, near, self.spec_.dt, self._prev_acc)
         self._prev_acc = motion.accel
@@ -184,8 +184,10 @@ class DenseTrafficEnv(gym.Env):
 
     def command(self, action: Any) -> EgoCommand:
         """An action -> physical `EgoCommand` (`simharness.envs.actions`); ValueError for NaN, inf or a bad index."""
-        f = self._history.now if len(self._history) else None  # the "speed" meta-actions steer from the ego's speed
-        speed = float(f.speed[f.ego]) if f is not None and f.ego >= 0 else 0.0
+        speed = 0.0
+        if self.config["action"] == "speed" and len(self._history):  # these meta-actions steer from the ego's speed
+            f = self._history.now
+            speed = float(f.speed[f.ego]) if f.ego >= 0 else 0.0
         return action_to_command(action, self.config, type(self).__name__, speed)
 
     def render(self) -> np.ndarray | None:

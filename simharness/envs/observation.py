@@ -61,12 +61,8 @@ class History:
             grow = max(len(self._codes), 2 * self._present.shape[1]) - self._present.shape[1]
             self._states = np.pad(self._states, ((0, 0), (0, grow), (0, 0)))
             self._present = np.pad(self._present, ((0, 0), (0, grow)))
-        slot = self._appended % self._present.shape[0]
-        self._present[slot] = False
-        self._present[slot, self._now_codes] = True
-        self._states[slot] = 0.0  # absent agents read as zeros
-        states = np.concatenate([frame.xy, frame.heading[:, None], frame.speed[:, None]], 1)  # (n, 4) x, y, h, v
-        self._states[slot, self._now_codes] = states
+        _put(self._states, self._present, self._appended % self._present.shape[0], self._now_codes, frame.xy,
+             frame.heading, frame.speed)
         self._frames.append(frame)
         self._appended += 1
 
@@ -81,14 +77,52 @@ class History:
     def __len__(self) -> int:
         return len(self._frames)
 
-    def track(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """The agents in `rows` (m,) of the newest frame over the held frames: xy (m, T, 2) m, heading (m, T)
-        rad, speed (m, T) m/s and present (m, T) bool (zeros where absent)."""
+    def track(self, rows: np.ndarray, origin: np.ndarray | None = None, heading: float = 0.0
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The agents in `rows` (m,) of the newest frame over the held frames: xy (m, T, 2) m minus origin (2,) m
+        (zeros if None), heading (m, T) rad minus `heading` rad, speed (m, T) m/s and present (m, T) bool (states
+        read as zeros where absent, before the subtractions)."""
         t = len(self._frames)
         slots = self._rings[self._appended % t] if t == self._rings.shape[0] else self._rings[0, :t]
-        at = (slots, self._now_codes[rows][:, None])
-        states = self._states[at]
-        return states[..., :2], states[..., 2], states[..., 3], self._present[at]
+        return _gather(self._states, self._present, slots, self._now_codes[rows],
+                       np.zeros(2) if origin is None else origin, heading)
+
+
+@njit(cache=True)
+def _gather(states: np.ndarray, present: np.ndarray, slots: np.ndarray, codes: np.ndarray, origin: np.ndarray,
+            h0: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """`History.track` over ring slots (T,) oldest first and agent codes (m,): one pass instead of two gathers and
+    the observation's two subtractions (the same float64 operations)."""
+    m, t = codes.size, slots.size
+    xy, heading, speed = np.empty((m, t, 2)), np.empty((m, t)), np.empty((m, t))
+    pres = np.empty((m, t), np.bool_)
+    for i in range(m):
+        c = codes[i]
+        for j in range(t):
+            s = slots[j]
+            xy[i, j, 0] = states[s, c, 0] - origin[0]
+            xy[i, j, 1] = states[s, c, 1] - origin[1]
+            heading[i, j] = states[s, c, 2] - h0
+            speed[i, j] = states[s, c, 3]
+            pres[i, j] = present[s, c]
+    return xy, heading, speed, pres
+
+
+@njit(cache=True)
+def _put(states: np.ndarray, present: np.ndarray, slot: int, codes: np.ndarray, xy: np.ndarray, heading: np.ndarray,
+         speed: np.ndarray) -> None:
+    """One frame into ring slot `slot`: states (slots, codes, 4) float64 x, y (m), heading (rad), speed (m/s) and
+    present (slots, codes) bool of the agents with codes (n,), from xy (n, 2), heading (n,), speed (n,) float32
+    (widened exactly); every other code of the slot reads as absent, with zero states."""
+    states[slot] = 0.0
+    present[slot] = False
+    for i in range(codes.size):
+        c = codes[i]
+        states[slot, c, 0] = xy[i, 0]
+        states[slot, c, 1] = xy[i, 1]
+        states[slot, c, 2] = heading[i]
+        states[slot, c, 3] = speed[i]
+        present[slot, c] = True
 
 
 def ego_offsets(frame: Frame) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -130,13 +164,11 @@ def agents_observation(history: History, k: int, h: int, obs_range: float, d: np
     if e < 0:
         return obs, np.zeros(0, int)
     rows = _ego_and_nearest(ego_offsets(frame)[2] if d is None else d, e, k, obs_range)
-    near = rows[1:]
-    xy, heading, speed, present = history.track(rows)
     p0, rot, h0 = ego_rotation(frame)
-    dh = heading - h0
-    _fill(obs, (xy - p0) @ rot.T / obs_range, speed, np.cos(dh), np.sin(dh), present, rows, frame.length,
-          frame.width, frame.agent_type)
-    return obs, near
+    rel, dh, speed, present = history.track(rows, p0, h0)
+    _fill(obs, rel @ rot.T, obs_range, speed, np.cos(dh), np.sin(dh), present, rows, frame.length, frame.width,
+          frame.agent_type)
+    return obs, rows[1:]
 
 
 def forecast_observation(history: History, near: np.ndarray, predictor: Predictor, k: int, ff: int,
@@ -165,16 +197,16 @@ def _clip(v: float) -> float:
 
 
 @njit(cache=True)
-def _fill(obs: np.ndarray, pos: np.ndarray, speed: np.ndarray, cos_dh: np.ndarray, sin_dh: np.ndarray,
-          present: np.ndarray, rows: np.ndarray, length: np.ndarray, width: np.ndarray, agent_type: np.ndarray
-          ) -> None:
+def _fill(obs: np.ndarray, pos: np.ndarray, obs_range: float, speed: np.ndarray, cos_dh: np.ndarray,
+          sin_dh: np.ndarray, present: np.ndarray, rows: np.ndarray, length: np.ndarray, width: np.ndarray,
+          agent_type: np.ndarray) -> None:
     """Write the features of m agents over t frames into obs[:m, H - t:] (right-aligned: the last column is
     now): each computed in float64, clipped to [-1, 1], times present (so absent entries are +-0), then cast
     to float32, as the numpy formulation it replaces did, in one pass instead of some twenty numpy calls.
 
-    pos (m, t, 2): x, y / range in the ego frame; speed (m, t) m/s; cos_dh, sin_dh (m, t): of the heading
-    relative to the ego's now (numpy's values); present (m, t) bool; rows (m,): the agents' rows in the
-    current frame, whose length, width (n,) m and agent_type (n,) they take.
+    pos (m, t, 2) m: x, y in the ego frame, divided here by obs_range (m); speed (m, t) m/s; cos_dh, sin_dh
+    (m, t): of the heading relative to the ego's now (numpy's values); present (m, t) bool; rows (m,): the agents'
+    rows in the current frame, whose length, width (n,) m and agent_type (n,) they take.
     """
     m, t = present.shape
     h = obs.shape[1]
@@ -188,8 +220,8 @@ def _fill(obs: np.ndarray, pos: np.ndarray, speed: np.ndarray, cos_dh: np.ndarra
             p = 1.0 if present[i, j] else 0.0
             o = obs[i, h - t + j]
             o[0] = p
-            o[1] = _clip(pos[i, j, 0]) * p
-            o[2] = _clip(pos[i, j, 1]) * p
+            o[1] = _clip(pos[i, j, 0] / obs_range) * p
+            o[2] = _clip(pos[i, j, 1] / obs_range) * p
             o[3] = _clip(speed[i, j] * cos_dh[i, j] / SPEED_SCALE) * p  # velocity in the ego frame
             o[4] = _clip(speed[i, j] * sin_dh[i, j] / SPEED_SCALE) * p
             o[5] = _clip(cos_dh[i, j]) * p

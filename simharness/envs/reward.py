@@ -21,7 +21,6 @@ at-fault collision, whatever the other weights (signs as documented).
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -54,14 +53,16 @@ class EgoSafety:
     gap: float
 
 
-def ego_safety(frame: Frame, offsets: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> EgoSafety:
+def ego_safety(frame: Frame, offsets: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+               heading: np.ndarray | None = None) -> EgoSafety:
     """Contact, min time-to-collision and min gap of the ego at `frame` (which must hold the ego); `offsets`:
-    `ego_offsets(frame)` if the caller has it already."""
+    `ego_offsets(frame)` if the caller has it already; heading (n,) rad: the boxes' headings (`box_heading`),
+    frame.heading if None."""
     e = frame.ego
     xy, rel, d = ego_offsets(frame) if offsets is None else offsets
     length, width = frame.length.astype(np.float64), frame.width.astype(np.float64)
     half_diagonal = 0.5 * np.hypot(length, width)
-    heading = frame.heading.astype(np.float64)
+    heading = (frame.heading if heading is None else heading).astype(np.float64)
     h = np.concatenate([heading, heading + np.pi / 2])  # the axes: each box's forward and left directions
     c, s = np.cos(h), np.sin(h)
     n = heading.size
@@ -70,12 +71,10 @@ def ego_safety(frame: Frame, offsets: tuple[np.ndarray, np.ndarray, np.ndarray] 
     return EgoSafety(ttc == 0.0, ttc, gap)
 
 
-def box_frame(frame: Frame) -> Frame:
-    """`frame` with the simulator's body headings (``extra["sim_heading"]``, SUMO) where it has them: the
-    headings the scorecard's collision boxes use (`collisions.box_heading`)."""
-    if "sim_heading" not in frame.extra:
-        return frame
-    return dataclasses.replace(frame, heading=frame.extra["sim_heading"])
+def box_heading(frame: Frame) -> np.ndarray:
+    """(n,) rad: the simulator's body headings (``extra["sim_heading"]``, SUMO) where it has them, else the
+    frame's: the headings the scorecard's collision boxes use (`collisions.box_heading`)."""
+    return frame.extra.get("sim_heading", frame.heading)
 
 
 @dataclass(frozen=True)
@@ -113,7 +112,7 @@ def ego_on_road(frame: Frame, road: RoadGeometry | None) -> bool:
     if road is None or not road.drivable:
         return True
     e = frame.ego
-    h = float((frame.extra["sim_heading"] if "sim_heading" in frame.extra else frame.heading)[e])
+    h = float(box_heading(frame)[e])
     hl = max(float(frame.length[e]) / 2 - DRIVABLE_TOLERANCE, 0.0)
     hw = max(float(frame.width[e]) / 2 - DRIVABLE_TOLERANCE, 0.0)
     (x, y), c, s = frame.xy[e].tolist(), math.cos(h), math.sin(h)  # scalars: the box's four corners by hand

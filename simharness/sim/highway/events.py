@@ -2,14 +2,16 @@
 
 Each event places an actor relative to the ego at `at` seconds after warm-up (step_out and pull_out
 also a bus stopped at the kerb), removes the background agents its footprint would overlap, and from
-then on drives it by script alone: it holds its speed and line for `delay` seconds, then runs its
+then on drives it by script alone: it holds its speed and line until `delay` seconds after `at`, then runs its
 manoeuvre (brake; move sideways towards a target offset while braking or accelerating towards
 `end_speed`). Scripted actors take no notice of anyone, the ego included, so after placement what
 they do is a function of time only: any oracle that branches the simulation sees it exactly, and
 predictors that extrapolate the past do not.
 
 Placement (ego front x_f, centre line y_e, speed v_e at `at`): the actor's rear at
-x_f + ahead + ahead_time * v_e, its centre at y_e + side (kept on the carriageway); step_out and
+x_f + ahead + ahead_time * v_e, its centre at y_e + side (kept on the carriageway). With a `lead`, it is
+placed `lead` s earlier and lead * (v_e - its speed) further ahead: an ego that keeps its speed meets the
+same geometry at `at`, and one that anticipates has had the actor in view for `lead` s. step_out and
 pull_out put the bus (pull_out: its actor, a bus unless `actor` names another, by its own width)
 against the kerb on the side of `side` (right when 0); step_out puts its
 pedestrian there on the kerb line, the stopped bus just behind it (between it and the ego: the
@@ -66,7 +68,7 @@ class EventScript:
         """Place due actors, then (acceleration, lateral speed) (n,) m/s^2, m/s per row; nan: not scripted."""
         clock = traffic.time - self.t0
         for ev in self.events:
-            if not ev.done and clock >= float(ev.spec["at"]) - 1e-9:
+            if not ev.done and clock >= float(ev.spec["at"]) - float(ev.spec["lead"]) - 1e-9:
                 ev.done = True
                 if traffic.ego_row >= 0:
                     self._place(traffic, ev, clock)
@@ -79,7 +81,7 @@ class EventScript:
                 continue
             acc[rows], vy[rows] = 0.0, 0.0  # hold speed and line (and the bus of step_out stays put)
             actor = traffic.row_of(ev.uids[0], missing=-1)
-            if actor < 0 or clock < ev.placed_at + float(ev.spec["delay"]) - 1e-9:
+            if actor < 0 or clock < ev.placed_at + float(ev.spec["lead"]) + float(ev.spec["delay"]) - 1e-9:
                 continue
             if not np.isfinite(ev.goal_y):
                 ev.goal_y = self._goal(traffic, ev, actor)
@@ -114,6 +116,7 @@ class EventScript:
             lim = hw - 0.5 * aw - KERB_GAP
             placed.append((actor_type, front + 0.5 * al, float(np.clip(s.y[e] + sp["side"], -lim, lim)), speed))
         for t, x, y, v in placed:
+            x += float(sp["lead"]) * (float(s.vx[e]) - v)  # what the ego, keeping its speed, closes in the lead
             self._clear(traffic, t, x, y)
             cols = traffic._new_columns(int(t), VEHICLE)
             cols["v0"] = max(v, 0.1)

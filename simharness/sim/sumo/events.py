@@ -2,10 +2,12 @@
 
 As on the highway backend (simharness/sim/highway/events.py): each event places its actors relative
 to the ego at `at` seconds after the ego's start, removes the background vehicles their footprints
-would overlap, and from then on moves them by script alone: hold speed and line for `delay` seconds,
-then the manoeuvre. Scripted actors take no notice of anyone, the ego included, so after placement
-what they do is a function of time only; their whole state lives in this object, which a fork of the
-worker process copies (`SumoProcess.branch`), so the exact oracle's branches see it exactly.
+would overlap, and from then on moves them by script alone: hold speed and line until `delay` seconds
+after `at`, then the manoeuvre. With a `lead`, placement is `lead` s earlier and further ahead by what
+the ego, keeping its speed, closes on the actor in that time. Scripted actors take no notice of anyone,
+the ego included, so after placement what they do is a function of time only; their whole state lives
+in this object, which a fork of the worker process copies (`SumoProcess.branch`), so the exact oracle's
+branches see it exactly.
 
 An actor is a SUMO vehicle of its type (speed mode 0, no lane changes) moved every SUMO step with
 `moveToXY` (keepRoute 2: anywhere on the road), so the background's sub-lane models see it as any
@@ -123,7 +125,7 @@ class EventScript:
         """
         clock = now - self.t0
         for i, ev in enumerate(self.events):
-            if not ev.done and clock >= float(ev.spec["at"]) - 1e-9:
+            if not ev.done and clock >= float(ev.spec["at"]) - float(ev.spec["lead"]) - 1e-9:
                 ev.done = True
                 pose = ego()
                 if pose is not None:
@@ -132,7 +134,8 @@ class EventScript:
             if not ev.actors or clock <= ev.placed_at + 1e-9:
                 continue
             main = ev.actors[0]
-            manoeuvring = clock >= ev.placed_at + float(ev.spec["delay"]) - 1e-9 and not main.gone
+            acts = ev.placed_at + float(ev.spec["lead"]) + float(ev.spec["delay"])
+            manoeuvring = clock >= acts - 1e-9 and not main.gone
             if manoeuvring and not np.isfinite(ev.goal):
                 self._goal(ev, main, ego())
             for k, a in enumerate(ev.actors):
@@ -171,6 +174,7 @@ class EventScript:
         else:
             placed.append((actor_type, near + 0.5 * al, float(np.clip(lat_e + sp["side"], -lim, lim)), speed, 0.0))
         for k, (t, s, lat, v, psi) in enumerate(placed):
+            s += float(sp["lead"]) * (v_e - v * math.cos(psi))  # what the ego, keeping its speed, closes in the lead
             length, width = DEFAULT_FOOTPRINT[t]
             a = Actor(f"{PREFIX}{i}.{k}", t, float(length), float(width), float(s), float(lat), float(v), psi)
             self._clear(ls, a)
