@@ -114,10 +114,8 @@ def rollout(job: dict[str, Any]) -> dict[str, Any]:
 
     from simharness.closedloop import prepare_spec
     from simharness.closedloop.config import LoopConfig
-    from simharness.closedloop.episode import simulate
+    from simharness.closedloop.episode import make_planner, simulate
     from simharness.closedloop.scoring import score_episode
-    from simharness.pdm_planner import PDMPlanner
-    from simharness.planners import EgoLimits
     from simharness.plugins import load_predictor
     from simharness.policy_planner import load_policy
     from simharness.scenario import load_scenario
@@ -127,7 +125,7 @@ def rollout(job: dict[str, Any]) -> dict[str, Any]:
     spec = prepare_spec(spec.with_overrides({"duration": job["duration"]}) if job["duration"] else spec)
     config = job["config"]
     student = load_policy(Path(job["student"]), config) if job["student"] else None
-    expert = PDMPlanner(EgoLimits(max_speed=spec.road.speed_limit))
+    expert = make_planner("const-vel", spec, None)  # the default planner, as the prediction-driven egos drive
     planner = LabellingPlanner(expert, student, config, job["beta"], job["seed"], job.get("straight", False))
     cfg = LoopConfig()
     scene, issued, _, _ = simulate(spec, job["seed"], load_predictor("const-vel"), planner, cfg)

@@ -49,9 +49,7 @@ def correction(pred: torch.Tensor, hist: torch.Tensor, mask: torch.Tensor) -> to
     target's Omega history hist (B, H, D): how far a residual model's correction moves its forecast."""
     from predictor.models.gaussian import cv_extrapolation
 
-    d = torch.sqrt(((pred[..., :2] - cv_extrapolation(hist, pred.shape[1])) ** 2).sum(-1) + 1e-6)
-    m = mask.to(d.dtype)
-    return (d * m).sum() / m.sum().clamp_min(1)
+    return ade(pred, cv_extrapolation(hist, pred.shape[1]), mask)
 
 
 def nll_mse(pred: torch.Tensor, fut: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:

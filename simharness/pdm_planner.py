@@ -35,6 +35,7 @@ import dataclasses
 import numpy as np
 from numba import njit, types
 
+from simharness.metrics.safety import TTC_BEHIND_DEG, TTC_STOPPED
 from simharness.planners import EgoLimits, ego_axis, rows_of
 from simharness.scene import Forecast, Scene
 from simharness.sim.base import EgoCommand, RoadGeometry
@@ -175,7 +176,8 @@ class PDMPlanner:
                              lim.max_lateral_speed, np.tan(lim.max_slip), cfg.idm_standstill, cfg.idm_headway_s,
                              np.sqrt(max(lim.max_accel, 0.1) * cfg.idm_decel), cfg.lateral_accel,
                              cfg.corridor_margin, cfg.margin_long, cfg.margin_lat, le / 2, we / 2,
-                             round(cfg.leader_lookahead_s / dt)]),
+                             round(cfg.leader_lookahead_s / dt), TTC_STOPPED,
+                             np.tan(np.deg2rad(180.0 - TTC_BEHIND_DEG))]),
                    self._taus, np.ascontiguousarray(a_s), np.ascontiguousarray(a_y), np.ascontiguousarray(a_vs),
                    np.ascontiguousarray(a_vy), np.ascontiguousarray(a_hx), np.ascontiguousarray(a_hy),
                    r["s"], r["y"], r["v"], r["vy"], r["a"], f_hit, f_close, v_other)
@@ -249,18 +251,19 @@ def _proposals(target: np.ndarray, goal: np.ndarray, jerk: np.ndarray, decel: np
     target (C,) m/s: IDM's desired speed; goal (C,) m: lateral position aimed at; jerk (C,) m/s^3, decel (C,) m/s^2:
     the proposal's bounds; p: v0, vy0, a0, dt, max_accel, max_speed, max_lateral_speed, tan(max_slip),
     idm_standstill, idm_headway_s, sqrt(a b), lateral_accel, corridor_margin, margin_long, margin_lat, ego half
-    length, ego half width, leader lookahead (steps); taus (K,) s: time-to-collision probes; agents: a_s, a_y (M, F
-    + 1) m, a_hx, a_hy (M, F + 1) half extents on the road axes, column f at f dt; a_vs, a_vy (M, F) m/s over each
-    step. Writes s, y, v, vy, a (C, F) (state at the end of each step, acceleration over it); f_hit (C,): the first
-    step that collides (margins added; agents behind the ego's centre only while the ego moves sideways towards
-    them), F if none; v_other (C,) m/s: the along-road speed of the agent first hit; f_close (C,): the first step
-    where a probe overlaps (no margins) an agent not behind the moving ego, i.e. the time-to-collision falls under
-    the threshold, F if none.
+    length, ego half width, leader lookahead (steps), the speed (m/s) below which the ego stands and the tangent of
+    180 degrees less the bearing beyond which an agent is behind it (`safety.ttc_relevant`); taus (K,) s:
+    time-to-collision probes; agents: a_s, a_y (M, F + 1) m, a_hx, a_hy (M, F + 1) half extents on the road axes,
+    column f at f dt; a_vs, a_vy (M, F) m/s over each step. Writes s, y, v, vy, a (C, F) (state at the end of each
+    step, acceleration over it); f_hit (C,): the first step that collides (margins added; agents behind the ego's
+    centre only while the ego moves sideways towards them), F if none; v_other (C,) m/s: the along-road speed of
+    the agent first hit; f_close (C,): the first step where a probe overlaps (no margins) an agent not behind the
+    moving ego, i.e. the time-to-collision falls under the threshold, F if none.
     """
     v0, vy0, a0, dt, a_max, v_cap, vy_max, tan_slip = p[0], p[1], p[2], p[3], p[4], p[5], p[6], p[7]
     s0, headway, sqrt_ab, lat_acc, corridor, m_long, m_lat, le2, we2 = p[8], p[9], p[10], p[11], p[12], p[13], \
         p[14], p[15], p[16]
-    look = int(p[17])
+    look, stopped, behind = int(p[17]), p[18], p[19]
     ease = jerk.min()
     n_c, n_f = s_out.shape
     n_m = a_s.shape[0]
@@ -315,8 +318,8 @@ def _proposals(target: np.ndarray, goal: np.ndarray, jerk: np.ndarray, decel: np
                     if ds > 0 or (dy > 0 and vy > 0.1) or (dy < 0 and vy < -0.1):
                         f_hit[c] = f
                         v_other[c] = a_vs[m, f]
-                # Time to collision as the scorecard's: agents not behind the moving ego (bearing over 150 degrees).
-                if f_close[c] == n_f and v > 5e-3 and not (ds < 0 and abs(dy) < -ds * 0.5774):
+                # Time to collision as the scorecard's (`safety.ttc_relevant`): agents not behind the moving ego.
+                if f_close[c] == n_f and v > stopped and not (ds < 0 and abs(dy) < -ds * behind):
                     for tau in taus:
                         if abs(ds + (a_vs[m, f] - v) * tau) < sx and abs(dy + (a_vy[m, f] - vy) * tau) < sy:
                             f_close[c] = f

@@ -29,7 +29,7 @@ import numpy as np
 from simharness.envs.actions import action_to_command
 from simharness.envs.config import DEFAULT_CONFIG, resolve_config
 from simharness.envs.observation import FEATURES, History, agents_observation, forecast_observation
-from simharness.envs.reward import box_heading, ego_safety
+from simharness.envs.reward import ego_safety
 from simharness.errors import UserError
 from simharness.scene import Forecast, Scene
 from simharness.sim.base import EgoCommand, Frame
@@ -79,7 +79,7 @@ class PolicyPlanner:
         self._history.append(frame)
         self._ego_frames = self._ego_frames + 1 if frame.ego >= 0 else 0
         if self._ego_frames and self.end_on_collision:
-            contact = ego_safety(frame, heading=box_heading(frame)).contact
+            contact = ego_safety(frame).contact
             self.ended = self.ended or (contact and not self._contact_prev and self._ego_frames > 1)
             self._contact_prev = contact
         if self.ended or self._ego_frames < int(c["history_frames"]):

@@ -48,27 +48,21 @@ def test_smoothing_reads_only_an_agents_own_valid_frames():
     assert np.all(out[0, 15:25] == 1e6)  # invalid frames untouched
 
 
-def test_noise_has_its_std_in_metres_is_seeded_by_scene_and_level_and_skips_invalid_frames():
-    scene = flow_scene(0, n=30, t=80)
+@pytest.mark.parametrize("kind, level, frames, tol", [("noise", 0.1, 80, 0.1), ("drift", 0.2, 200, 0.6)])
+def test_reannotation_has_its_std_in_metres_is_seeded_by_scene_and_skips_invalid_frames(kind, level, frames, tol):
+    scene = flow_scene(0, n=30, t=frames)
     scene = scene.replace(valid=scene.valid.copy())
     scene.valid[0, :10] = False
-    a = reannotated(scene, "s", ("noise", 0.1), scale=20.0)  # 20 units per metre
+    a = reannotated(scene, "s", (kind, level), scale=20.0)  # 20 units per metre
     d = (a.xy - scene.xy)[scene.valid]
-    assert abs(d.std() - 2.0) < 0.1 and np.all(a.xy[0, :10] == scene.xy[0, :10])
-    assert np.array_equal(a.xy, reannotated(scene, "s", ("noise", 0.1), scale=20.0).xy)
-    assert not np.array_equal(a.xy, reannotated(scene, "t", ("noise", 0.1), scale=20.0).xy)
-    assert not np.array_equal(noisy(scene, 0.1, 20.0, 1).xy, noisy(scene, 0.1, 20.0, 2).xy)
+    assert abs(d.std() - 20.0 * level) < tol and np.all(a.xy[0, :10] == scene.xy[0, :10])
+    assert np.array_equal(a.xy, reannotated(scene, "s", (kind, level), scale=20.0).xy)
+    assert not np.array_equal(a.xy, reannotated(scene, "t", (kind, level), scale=20.0).xy)
 
 
-def test_drift_has_its_std_in_metres_sways_slowly_is_seeded_and_skips_invalid_frames():
+def test_noise_seeds_differ_and_drift_sways_slowly():
     scene = flow_scene(0, n=30, t=200)
-    scene = scene.replace(valid=scene.valid.copy())
-    scene.valid[0, :10] = False
-    a = reannotated(scene, "s", ("drift", 0.2), scale=20.0)  # 20 units per metre
-    d = (a.xy - scene.xy)[scene.valid]
-    assert abs(d.std() - 4.0) < 0.6 and np.all(a.xy[0, :10] == scene.xy[0, :10])
-    assert np.array_equal(a.xy, reannotated(scene, "s", ("drift", 0.2), scale=20.0).xy)
-    assert not np.array_equal(a.xy, reannotated(scene, "t", ("drift", 0.2), scale=20.0).xy)
+    assert not np.array_equal(noisy(scene, 0.1, 20.0, 1).xy, noisy(scene, 0.1, 20.0, 2).xy)
     # correlated along time, unlike white noise: consecutive frames' errors agree (the lag-1 correlation of white
     # noise is zero), so its steps are smaller than white noise's of the same std
     err = drifting(scene, 1.0, 1.0, 3).xy - scene.xy

@@ -22,7 +22,6 @@ from simharness.envs.reward import (
     FAULT_FRAMES,
     GAP_CAP,
     TTC_CAP,
-    box_heading,
     ego_fault,
     ego_motion,
     ego_on_road,
@@ -138,7 +137,7 @@ class DenseTrafficEnv(gym.Env):
         prev = self._history.frames[-2]
         self._prev_acc = (float(frame.speed[frame.ego]) - float(prev.speed[prev.ego])) / self.spec_.dt
         self._steps = 0
-        self._contact_prev = ego_safety(frame, heading=box_heading(frame)).contact  # a placed overlap is not new
+        self._contact_prev = ego_safety(frame).contact  # an overlap the simulator placed is not new
         self._collisions = 0
         self._at_fault = 0
         self._progress = 0.0
@@ -161,7 +160,7 @@ class DenseTrafficEnv(gym.Env):
             obs, _ = self._observation()
             return obs, 0.0, True, False, self._info(TTC_CAP, GAP_CAP)
         offsets = ego_offsets(frame)  # shared by the safety terms and the observation
-        safe = ego_safety(frame, offsets, box_heading(frame))
+        safe = ego_safety(frame, offsets)
         obs, near = self._observation(offsets[2])
         motion = ego_motion(prev, frame, near, self.spec_.dt, self._prev_acc)
         self._prev_acc = motion.accel

@@ -53,16 +53,14 @@ class EgoSafety:
     gap: float
 
 
-def ego_safety(frame: Frame, offsets: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
-               heading: np.ndarray | None = None) -> EgoSafety:
-    """Contact, min time-to-collision and min gap of the ego at `frame` (which must hold the ego); `offsets`:
-    `ego_offsets(frame)` if the caller has it already; heading (n,) rad: the boxes' headings (`box_heading`),
-    frame.heading if None."""
+def ego_safety(frame: Frame, offsets: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> EgoSafety:
+    """Contact, min time-to-collision and min gap of the ego at `frame` (which must hold the ego), the boxes
+    turned as the scorecard's (`box_heading`); `offsets`: `ego_offsets(frame)` if the caller has it already."""
     e = frame.ego
     xy, rel, d = ego_offsets(frame) if offsets is None else offsets
     length, width = frame.length.astype(np.float64), frame.width.astype(np.float64)
     half_diagonal = 0.5 * np.hypot(length, width)
-    heading = (frame.heading if heading is None else heading).astype(np.float64)
+    heading = box_heading(frame).astype(np.float64)
     h = np.concatenate([heading, heading + np.pi / 2])  # the axes: each box's forward and left directions
     c, s = np.cos(h), np.sin(h)
     n = heading.size

@@ -91,8 +91,12 @@ def time_to_collision(
     return ttc
 
 
+TTC_BEHIND_DEG = 150.0  # an agent whose bearing off the ego's heading exceeds this is behind it (nuPlan's)
+TTC_STOPPED = 5e-3  # m/s: an ego this slow is standing; nothing closing in on it is a near miss of its making
+
+
 def ttc_relevant(xy: np.ndarray, heading: np.ndarray, speed: np.ndarray, valid: np.ndarray, ego: int,
-                 behind_deg: float = 150.0, stopped: float = 5e-3) -> np.ndarray:
+                 behind_deg: float = TTC_BEHIND_DEG, stopped: float = TTC_STOPPED) -> np.ndarray:
     """Which agents' time-to-collision counts, as nuPlan's TTC metric: agents not behind the ego (the bearing of
     their centre off the ego's heading at most `behind_deg`: a lane-less road, so beside counts as ahead), while
     the ego moves (speed above `stopped` m/s). Closing in on an ego from behind, or on one standing, is not a near
