@@ -86,7 +86,7 @@ def test_fork_of_the_worker_carries_the_script_on_exactly():
     live = SumoProcess(spec)
     try:
         live.reset(5)
-        for _ in range(17):  # placed at 3 s; fork before the turn starts (4 s)
+        for _ in range(17):  # placed at 1.5 s (its lead); fork before the turn starts (4 s)
             live.step(None)
         branch = live.branch()
         try:
