@@ -50,7 +50,9 @@ class PDMConfig:
     lateral_offsets: tuple[float, ...] = (0.0, -0.75, 0.75, -1.5, 1.5, -3.0, 3.0)  # m from the reference, + left
     emergency_offsets: tuple[float, ...] = (0.0,)  # offsets of the proposals that may brake at the ego's limit
     horizon_s: float = 4.0  # s of the forecast used (shorter if the forecast is)
-    radius: float = 90.0  # m: agents of `now` this close to the ego are planned around (the loop's radius)
+    # m: agents of `now` this close to the ego are planned around (and forecast: the loop's radius); oncoming traffic
+    # closes at up to twice the speed limit, and at 60 m a car turning across came into view too late to slow for it
+    radius: float = 90.0
     idm_headway_s: float = 1.0  # IDM's desired time gap
     idm_standstill: float = 2.0  # m: IDM's gap at standstill
     idm_decel: float = 3.0  # m/s^2: IDM's comfortable deceleration b

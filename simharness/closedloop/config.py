@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 
 from simharness.closedloop.perturbations import Perturbation
+from simharness.pdm_planner import PDMConfig
 from simharness.scenario import ScenarioSpec
 from simharness.scene import Forecast
 
@@ -16,9 +17,7 @@ class LoopConfig:
     history_s: float = 3.0  # seconds of history given to the predictor
     horizon_s: float = 5.0  # seconds forecast
     predict_hz: float = 2.5  # predictor calls per second; the planner replans every frame
-    # m: agents this close to the ego are given to the predictor; oncoming traffic closes at up to twice the speed
-    # limit, and 60 m showed a car that turns across the ego's path too late to slow for it comfortably
-    radius: float = 90.0
+    radius: float = PDMConfig.radius  # m: agents this close to the ego are given to the predictor (the planner's view)
     ttc_threshold: float = 1.5  # s: near miss below this time-to-collision
     ttc_horizon: float = 5.0  # s: time-to-collision extrapolation horizon
     stuck_speed: float = 0.5  # m/s: the ego counts as stuck below this speed
