@@ -11,12 +11,13 @@ checkpoints every --save-every steps, then writes
 - the learning curve (episode return, collision shares and progress against env steps, 50-episode
   moving average) to --figure (default RUN/curve.png), its data to RUN/curve.json.
 
---action speed (default) trains on the 12 target-speed meta-actions, discrete on the acceleration ones,
-continuous on the Box; --predictor NAME adds the forecast observation (MultiInputPolicy).
+--action speed (default) trains on the 12 target-speed meta-actions, follow on the same keeping IDM's gap to the
+agent ahead, discrete on the acceleration ones, continuous on the Box; --no-lateral drops the meta-actions'
+nudges (the line held); --predictor NAME adds the forecast observation (MultiInputPolicy).
 
 Usage: OMP_NUM_THREADS=1 python bench/train_ppo.py [--steps 2000000] [--deadline 14:10|+3600] [--seed 0]
                                                   [--env HighwayDense-v0] [--action speed] [--predictor const-vel]
-                                                  [--n-envs 4] [--vec subproc] [--reward ttc=0]
+                                                  [--n-envs 4] [--vec subproc] [--reward ttc=0] [--no-lateral]
 """
 
 from __future__ import annotations
@@ -142,8 +143,9 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--steps", type=int, default=2_000_000)
     p.add_argument("--env", default="HighwayDense-v0", choices=("HighwayDense-v0", "SumoDense-v0"))
-    p.add_argument("--action", default="speed", choices=("speed", "discrete", "continuous"))
+    p.add_argument("--action", default="speed", choices=("speed", "follow", "discrete", "continuous"))
     p.add_argument("--predictor", default=None, help="add the forecast observation from this predictor")
+    p.add_argument("--no-lateral", action="store_true", help="meta-actions without the nudges (the line held)")
     p.add_argument("--reward", action="append", default=[], metavar="TERM=WEIGHT",
                    help="a reward weight other than the default, e.g. ttc=0 (repeatable)")
     p.add_argument("--deadline", default=None, help="stop at this UTC time (HH:MM) or after +SECONDS if not done")
@@ -204,7 +206,7 @@ def main() -> None:
             return time.time() < end_at
 
     env_id = f"simharness.envs:simharness/{a.env}"
-    config = {"action": a.action, "predictor": a.predictor}
+    config = {"action": a.action, "predictor": a.predictor, "lateral": not a.no_lateral}
     if a.reward:
         config["reward"] = {k: float(v) for k, _, v in (x.partition("=") for x in a.reward)}
     venv = make_vec_env(env_id, n_envs=a.n_envs, seed=a.seed, monitor_dir=str(monitor_dir),

@@ -93,7 +93,7 @@ class PolicyPlanner:
                                       float(now.dt))
             obs = {"agents": obs, "forecast": fc.reshape(-1) if c["flatten"] else fc}
         action, _ = self.policy.predict(obs, deterministic=self.deterministic)
-        return action_to_command(action, c, "PolicyPlanner", float(frame.speed[frame.ego]))
+        return action_to_command(action, c, "PolicyPlanner", frame)
 
 
 # ---------------------------------------------------------------------- loading SB3 zips without unpickling
@@ -164,6 +164,8 @@ def load_policy(path: Path, config: dict[str, Any]) -> Any:
             raise UserError(f"{where}: its {key} is {got.get(':type:')}, the env config gives {space}")
         if _shape(got) is not None and _shape(got) != space.shape:
             raise UserError(f"{where}: its {key} has shape {_shape(got)}, the env config gives {space.shape}")
+        if "Discrete" in got.get(":type:", "") and int(got.get("n", -1)) != space.n:
+            raise UserError(f"{where}: its {key} has {got.get('n')} actions, the env config gives {space}")
     custom = {key: None for key, value in data.items() if isinstance(value, dict) and ":serialized:" in value}
     custom.update({"observation_space": obs_space, "action_space": act_space,
                    "policy_class": _policy_class(algorithm, isinstance(obs_space, spaces.Dict)),
@@ -195,6 +197,7 @@ def policy_config(path: Path) -> dict[str, Any]:
     config: dict[str, Any] = {}
     if "Discrete" in data.get("action_space", {}).get(":type:", ""):
         config["action"] = "discrete"
+        config["lateral"] = int(data["action_space"].get("n", 12)) != 4  # Discrete(4): the longitudinal choices only
     shape = _shape(data.get("observation_space", {}))
     if shape and len(shape) == 3:
         config["flatten"] = False

@@ -274,6 +274,61 @@ def test_speed_meta_actions_hold_their_speed():
     env.close()
 
 
+def _frame(xy, heading, speed, length=4.5, width=1.8):
+    """One frame, the ego in row 0; xy (n, 2) m, heading (n,) rad, speed (n,) m/s."""
+    from simharness.sim.base import Frame
+
+    n = len(xy)
+    return Frame(t=0.0, agent_id=np.array([f"a{i}" for i in range(n)]), agent_type=np.zeros(n, np.int8),
+                 xy=np.asarray(xy, np.float32), heading=np.asarray(heading, np.float32),
+                 speed=np.asarray(speed, np.float32), length=np.full(n, length, np.float32),
+                 width=np.full(n, width, np.float32), ego=0)
+
+
+def test_follow_leader_is_the_nearest_agent_in_the_corridor():
+    from simharness.envs.actions import leader
+
+    # Ahead 20 m in the corridor (gap 20 - 4.5), ahead 10 m but 3 m aside (outside it), behind, and one across.
+    f = _frame([[0, 0], [20, 0.5], [10, 3.0], [-10, 0], [40, -1.0]], [0, 0, 0, 0, np.pi / 2], [8, 5, 5, 9, 1])
+    gap, v = leader(f)
+    assert gap == pytest.approx(15.5) and v == pytest.approx(5.0)
+    # A car crossing 6 m ahead, seen side-on: its width is its extent along the ego's heading.
+    f = _frame([[0, 0], [6, 0.0]], [0, np.pi / 2], [8, 1.5], length=4.5, width=1.8)
+    gap, v = leader(f)
+    assert gap == pytest.approx(6 - 0.9 - 2.25, abs=1e-5) and v == pytest.approx(0.0, abs=1e-6)
+    assert leader(_frame([[0, 0], [-5, 0]], [0, 0], [8, 8])) == (np.inf, 0.0)
+
+
+def test_follow_meta_actions_keep_the_gap_to_the_agent_ahead():
+    """"follow" is "speed" with nobody ahead, brakes for a stopped car ahead, and never speeds up into one."""
+    from simharness.envs.actions import action_to_command
+
+    cfg = {"action": "follow", "max_accel": 2.5, "max_decel": 7.0, "max_lateral_speed": 1.5, "lateral": True}
+    free = _frame([[0, 0]], [0], [5.0])
+    speed_cfg = {**cfg, "action": "speed"}
+    for i in range(12):
+        assert action_to_command(i, cfg, frame=free) == action_to_command(i, speed_cfg, frame=free)
+    stopped_ahead = _frame([[0, 0], [15, 0]], [0, 0], [7.0, 0.0])
+    fast = action_to_command(10, cfg, frame=stopped_ahead)  # "fast, straight": 10.5 m/s wanted
+    assert fast.acceleration < -2.0  # s* = 2 + 7 + 7 * 7 / (2 sqrt(2.5 * 3)) = 17.9 m > the 10.5 m gap
+    assert action_to_command(10, speed_cfg, frame=stopped_ahead).acceleration == pytest.approx(2.5)
+    assert action_to_command(10, cfg, frame=_frame([[0, 0], [8, 0]], [0, 0], [7.0, 0.0])).acceleration == -7.0
+    held = {**cfg, "lateral": False}  # the longitudinal choices only: index 3 is "fast", the line held
+    assert action_to_command(3, held, frame=stopped_ahead) == fast and fast.lateral_velocity == 0.0
+    with pytest.raises(ValueError, match="0..3"):
+        action_to_command(4, held, frame=stopped_ahead)
+    assert gym.make(HW_ID, config={**HW, "action": "follow", "lateral": False}).action_space == gym.spaces.Discrete(4)
+    env = gym.make(HW_ID, config={**HW, "action": "follow"}).unwrapped
+    assert env.action_space == gym.spaces.Discrete(12)
+    env.reset(seed=0)
+    for _ in range(10):
+        _, _, term, trunc, info = env.step(10)
+        assert info["at_fault_collisions"] == 0
+        if term or trunc:
+            break
+    env.close()
+
+
 def _frames(ego_xy, ego_v, other_xy, other_v, n=9, dt=0.2):
     """n frames of an ego and one other car driving along +x at constant speeds from the given positions."""
     from simharness.sim.base import Frame

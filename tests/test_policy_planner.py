@@ -62,6 +62,19 @@ def test_speed_meta_actions_steer_from_the_ego_s_speed_like_the_env():
     env.close()
 
 
+def test_follow_meta_actions_keep_the_gap_like_the_env():
+    cfg = {"action": "follow", "lateral": False}
+    env = gym.make("simharness/HighwayDense-v0", config={"duration": 4.0, "warmup": 8.0, **cfg}).unwrapped
+    env.reset(seed=3)
+    policy = Recorder((0.0, 0.0))
+    policy.action = np.int64(3)  # "fast", the line held
+    planner = PolicyPlanner(policy, cfg)
+    for frame in env._history.frames:
+        command = planner.plan(_now(frame), None)
+    assert command == env.command(3) and command.lateral_velocity == 0.0
+    env.close()
+
+
 def test_forecast_observation_matches_the_env():
     cfg = {"duration": 4.0, "warmup": 8.0, "predictor": "const-vel", "num_agents": 8}
     env = gym.make("simharness/HighwayDense-v0", config=cfg).unwrapped
@@ -110,6 +123,19 @@ def test_sb3_policies_drive_the_closed_loop_loaded_without_unpickling(tmp_path):
         load_policy_planner(tmp_path / "bad.zip")
     with pytest.raises(UserError, match="observation_space has shape"):
         load_policy_planner(tmp_path / "p.zip", {"action": "discrete", "num_agents": 4})
+    with pytest.raises(UserError, match="action_space has 12 actions"):
+        load_policy_planner(tmp_path / "p.zip", {"action": "follow", "lateral": False})
+
+
+def test_a_line_held_policy_loads_without_a_note(tmp_path):
+    from stable_baselines3 import PPO
+
+    env = gym.make("simharness/HighwayDense-v0", config={"duration": 4.0, "warmup": 8.0, "action": "follow",
+                                                          "lateral": False})
+    PPO("MlpPolicy", env, n_steps=64, seed=0, device="cpu").save(tmp_path / "p.zip")
+    env.close()
+    planner = load_policy_planner(tmp_path / "p.zip")  # Discrete(4): the longitudinal choices, the line held
+    assert planner.config["lateral"] is False and planner.policy.action_space.n == 4
 
 
 def test_the_episode_ends_at_the_policy_s_collision():
@@ -139,3 +165,18 @@ def test_the_shipped_policy_loads_with_its_note():
     action, _ = planner.policy.predict(obs, deterministic=True)
     assert env.action_space.contains(action)
     env.close()
+
+
+def test_the_fixed_cruise_example_drives_as_a_planner_plug_in():
+    from pathlib import Path
+
+    from simharness.plugins import load_planner
+
+    path = Path(__file__).resolve().parents[1] / "examples" / "cruise_policy.py"
+    spec = prepare_spec(load_scenario("highway_mixed_dense").with_overrides({"duration": 6.0, "warmup": 8.0}))
+    planner = load_planner(f"{path}:Cruise", spec)
+    assert isinstance(planner, PolicyPlanner) and planner.config["action"] == "follow"
+    scene, issued, _, _ = simulate(spec, 0, None, planner, LoopConfig())
+    e = scene.ego
+    assert e >= 0 and scene.valid[e].sum() >= 25 and not planner.ended
+    assert issued  # the policy, not the simulator, drove once the ego had its history

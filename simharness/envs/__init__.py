@@ -27,7 +27,8 @@ Action (`simharness.envs.actions`): ``config["action"] = "continuous"`` (default
 acceleration ``a[0] * max_accel`` / ``a[0] * max_decel`` (m/s^2) and lateral velocity ``a[1] *
 max_lateral_speed`` (m/s, + left); NaN or infinite values raise ValueError (nothing is stepped).
 ``"discrete"``: ``Discrete(12)`` meta-actions, {brake, slower, hold, faster} x {nudge left, straight,
-nudge right}; ``"speed"``: ``Discrete(12)``, target speeds {stop, slow, cruise, fast} x the same nudges.
+nudge right}; ``"speed"``: ``Discrete(12)``, target speeds {stop, slow, cruise, fast} x the same nudges;
+``"follow"``: the same, keeping IDM's gap to the agent ahead (the car-following given, not learned).
 `DenseTrafficEnv.command(action)` gives the physical `EgoCommand`.
 
 Reward per step (weights in ``config["reward"]``, `simharness.envs.reward`): a collision-free step on the

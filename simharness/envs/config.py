@@ -31,7 +31,10 @@ DEFAULT_CONFIG: dict[str, Any] = {
     "max_decel": 7.0,  # m/s^2 of braking for action[0] = -1
     "max_lateral_speed": 1.5,  # m/s for action[1] = +-1
     "action": "continuous",  # continuous: Box(-1, 1, (2,)); discrete: Discrete(12) meta-actions (DISCRETE_ACTIONS);
-    # speed: Discrete(12) target-speed meta-actions (SPEED_ACTIONS)
+    # speed: Discrete(12) target-speed meta-actions (SPEED_ACTIONS); follow: the same, keeping IDM's gap to the
+    # agent ahead
+    "lateral": True,  # meta-actions only: False drops the nudges (Discrete(4), the line held), as highway-env's
+    # DiscreteMetaAction(lateral=False)
     "flatten": True,  # observation as a 1-D vector (reshape to (K + 1, H, F)); False: the (K + 1, H, F) array
     "terminate_on_collision": True,
     "target_speed": 7.0,  # m/s at which the progress term is full: about the dense traffic's median speed (both
@@ -44,7 +47,7 @@ DEFAULT_CONFIG: dict[str, Any] = {
                "collision_at_fault": -1.0, "collision_hit": -0.5},
 }
 REACTIONS = (None, "reactive", "cut_in", "ignore")
-ACTIONS = ("continuous", "discrete", "speed")
+ACTIONS = ("continuous", "discrete", "speed", "follow")
 _POSITIVE = ("duration", "obs_range", "max_accel", "max_decel", "max_lateral_speed")
 _COUNTS = ("num_agents", "history_frames", "forecast_frames", "episodes_per_warmup")
 
@@ -93,7 +96,7 @@ def _check(c: dict[str, Any], where: str) -> None:
         raise UserError(f"{where} config: key 'target_speed': expected > 0 or None, got {c['target_speed']!r}")
     if c["action"] not in ACTIONS:
         raise UserError(f"{where} config: key 'action': expected one of {ACTIONS}, got {c['action']!r}")
-    for key in ("flatten", "terminate_on_collision"):
+    for key in ("flatten", "terminate_on_collision", "lateral"):
         if not isinstance(c[key], bool):
             raise UserError(f"{where} config: key {key!r}: expected true or false, got {c[key]!r}")
     if c["reaction"] not in REACTIONS:

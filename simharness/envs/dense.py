@@ -183,11 +183,8 @@ class DenseTrafficEnv(gym.Env):
 
     def command(self, action: Any) -> EgoCommand:
         """An action -> physical `EgoCommand` (`simharness.envs.actions`); ValueError for NaN, inf or a bad index."""
-        speed = 0.0
-        if self.config["action"] == "speed" and len(self._history):  # these meta-actions steer from the ego's speed
-            f = self._history.now
-            speed = float(f.speed[f.ego]) if f.ego >= 0 else 0.0
-        return action_to_command(action, self.config, type(self).__name__, speed)
+        frame = self._history.now if len(self._history) else None  # the meta-actions steer from the present
+        return action_to_command(action, self.config, type(self).__name__, frame)
 
     def render(self) -> np.ndarray | None:
         """rgb_array: (H, W, 3) uint8 top-down view around the ego (`simharness.envs.render`); human: shown in a
