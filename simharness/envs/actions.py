@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 
+from simharness.envs.observation import ego_rotation
 from simharness.pdm_planner import PDMConfig
 from simharness.sim.base import EgoCommand, Frame
 
@@ -49,6 +50,7 @@ SPEED_TAU = 0.5  # s: the speed error is closed at (error / SPEED_TAU) m/s^2, cl
 SPEED_META_ACTIONS = [f"{lon}, {lat}" for lon in TARGET_SPEEDS for lat in LATERAL]  # index -> name
 SPEED_ACTIONS = np.array([[v, b] for v in TARGET_SPEEDS.values() for b in LATERAL.values()])  # (12, 2) m/s, a[1]
 META = ("discrete", "speed", "follow")  # the action kinds that are meta-action indices
+STRAIGHT = list(LATERAL).index("straight")  # the lateral choice of a meta-action with the line held
 _IDM = PDMConfig()  # the "follow" gap keeping: the planner's IDM constants and corridor margin
 
 
@@ -57,10 +59,8 @@ def leader(frame: Frame, margin: float = _IDM.corridor_margin) -> tuple[float, f
     corridor (the ego's width plus `margin` on each side), all at their current state; (inf, 0) when none.
     The gap is between the boxes' extents along the ego's heading, at least 0.1 m."""
     e = frame.ego
-    h = float(frame.heading[e])
-    c, s = math.cos(h), math.sin(h)
-    rel = frame.xy.astype(np.float64) - frame.xy[e]
-    lon, lat = rel @ (c, s), rel @ (-s, c)
+    origin, rot, h = ego_rotation(frame)
+    lon, lat = rot @ (frame.xy.astype(np.float64) - origin).T
     dh = frame.heading.astype(np.float64) - h
     ca, sa = np.abs(np.cos(dh)), np.abs(np.sin(dh))
     half_lon = 0.5 * (ca * frame.length + sa * frame.width)  # the box's half-extent along the ego's heading
@@ -86,10 +86,15 @@ def follow_acceleration(target: float, speed: float, gap: float, lead_speed: flo
     return min(max(acc, -max_decel), max_accel)
 
 
+def meta_actions(config: dict[str, Any]) -> int:
+    """How many meta-actions `config` gives: 12, or 4 (the longitudinal choices) without `lateral`."""
+    return len(DISCRETE_ACTIONS) if config["lateral"] else len(DISCRETE_ACTIONS) // len(LATERAL)
+
+
 def action_space(config: dict[str, Any]) -> spaces.Space:
     """The env's action space under `config["action"]` (and `config["lateral"]` for the meta-actions)."""
     if config["action"] in META:
-        return spaces.Discrete(len(DISCRETE_ACTIONS) if config["lateral"] else len(DISCRETE_ACTIONS) // len(LATERAL))
+        return spaces.Discrete(meta_actions(config))
     return spaces.Box(-1.0, 1.0, (2,), np.float32)
 
 
@@ -101,14 +106,14 @@ def action_to_command(action: Any, config: dict[str, Any], where: str = "env", f
     of range."""
     a = np.asarray(action)
     if config["action"] in META:
-        last = action_space(config).n - 1
+        last = meta_actions(config) - 1
         if a.size != 1 or not (np.issubdtype(a.dtype, np.integer) or float(a.ravel()[0]).is_integer()):
             raise ValueError(f"{where}: action {action!r}: expected one meta-action index in 0..{last}")
         i = int(a.ravel()[0])
         if not 0 <= i <= last:
             raise ValueError(f"{where}: action {i}: expected a meta-action index in 0..{last}")
         if not config["lateral"]:  # index = the longitudinal choice, the line held
-            i = len(LATERAL) * i + list(LATERAL).index("straight")
+            i = len(LATERAL) * i + STRAIGHT
         if config["action"] != "discrete":
             target, lat = SPEED_ACTIONS[i].tolist()
             ego = frame is not None and frame.ego >= 0
