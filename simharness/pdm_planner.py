@@ -9,7 +9,8 @@ Every frame:
    a forecast left it out.
 2. Proposals: target speeds x lateral offsets. Longitudinally each follows the intelligent driver model (IDM) at its
    target speed behind the nearest agent ahead in its own corridor at each step, or entering it within
-   `leader_lookahead_s` ahead of where the ego will be (the agents at their forecast positions), its acceleration
+   `leader_lookahead_s` (a pedestrian forecast to cross the road: `pedestrian_lookahead_s`, long enough to stop for
+   it comfortably) ahead of where the ego will be (the agents at their forecast positions), its acceleration
    moved towards IDM's at a bounded jerk and held within comfortable bounds (the emergency proposals may brake at the
    ego's limit); laterally each moves from the ego's reference line (the line
    the last chosen proposal was heading for) to its offset at a bounded lateral acceleration. Lane-less road: the
@@ -37,7 +38,7 @@ from numba import njit, types
 
 from simharness.metrics.safety import TTC_BEHIND_DEG, TTC_STOPPED
 from simharness.planners import EgoLimits, ego_axis, rows_of
-from simharness.scene import Forecast, Scene
+from simharness.scene import AgentType, Forecast, Scene
 from simharness.sim.base import EgoCommand, RoadGeometry
 
 
@@ -62,6 +63,11 @@ class PDMConfig:
     lateral_accel: float = 1.5  # m/s^2: how fast the lateral speed changes (nuPlan's bound 4.89)
     corridor_margin: float = 0.3  # m beside the boxes: who counts as the leader of a proposal
     leader_lookahead_s: float = 1.5  # s: an agent entering the corridor this soon is a leader already
+    # s: the same for a pedestrian forecast to cross the road, yielded to early enough to stop for it comfortably
+    # (v / comfort_decel is 3.5 s at 45 km/h): a vehicle that will cross is passed or followed, a crossing
+    # pedestrian is waited for
+    pedestrian_lookahead_s: float = 3.0
+    crossing_m: float = 2.0  # m across the road axis within the horizon: a pedestrian forecast to cross it
     margin_long: float = 0.3  # m ahead and behind the boxes: collision check
     margin_lat: float = 0.15  # m beside the boxes: collision check
     ttc_threshold: float = 1.5  # s: the scorecard's near-miss threshold
@@ -170,6 +176,10 @@ class PDMPlanner:
         la, wa = (now.length[rows] / 2).astype(np.float64)[:, None], (now.width[rows] / 2).astype(np.float64)[:, None]
         a_hx, a_hy = cos_h * la + sin_h * wa, sin_h * la + cos_h * wa  # (M, F + 1) half extents on the road axes
         a_vs, a_vy = np.diff(a_s, axis=1) / dt, np.diff(a_y, axis=1) / dt  # (M, F) speeds over each step
+        # A pedestrian forecast to cross the road (not one walking along it) is waited for from further out.
+        crossing = (now.agent_type[rows] == AgentType.PEDESTRIAN) & (np.ptp(a_y, axis=1) > cfg.crossing_m)
+        look = np.where(crossing, round(cfg.pedestrian_lookahead_s / dt),
+                        round(cfg.leader_lookahead_s / dt)).astype(np.int64)  # (M,) steps
         c = self._share.size
         r = {k: np.empty((c, frames)) for k in ("s", "y", "v", "vy", "a")}
         f_hit, f_close, v_other = np.empty(c, np.int64), np.empty(c, np.int64), np.empty(c)
@@ -178,10 +188,10 @@ class PDMPlanner:
                              lim.max_lateral_speed, np.tan(lim.max_slip), cfg.idm_standstill, cfg.idm_headway_s,
                              np.sqrt(max(lim.max_accel, 0.1) * cfg.idm_decel), cfg.lateral_accel,
                              cfg.corridor_margin, cfg.margin_long, cfg.margin_lat, le / 2, we / 2,
-                             round(cfg.leader_lookahead_s / dt), TTC_STOPPED,
+                             TTC_STOPPED,
                              np.tan(np.deg2rad(180.0 - TTC_BEHIND_DEG))]),
                    self._taus, np.ascontiguousarray(a_s), np.ascontiguousarray(a_y), np.ascontiguousarray(a_vs),
-                   np.ascontiguousarray(a_vy), np.ascontiguousarray(a_hx), np.ascontiguousarray(a_hy),
+                   np.ascontiguousarray(a_vy), np.ascontiguousarray(a_hx), np.ascontiguousarray(a_hy), look,
                    r["s"], r["y"], r["v"], r["vy"], r["a"], f_hit, f_close, v_other)
         th = np.arctan2(r["vy"], np.maximum(r["v"], 1e-3))  # (C, F) ego heading off the road axis
         collides = f_hit < frames
@@ -241,31 +251,31 @@ class PDMPlanner:
 _F1, _F2 = types.float64[:], types.float64[:, :]
 
 
-@njit((_F1, _F1, _F1, _F1, _F1, _F1, _F2, _F2, _F2, _F2, _F2, _F2, _F2, _F2, _F2, _F2, _F2,
+@njit((_F1, _F1, _F1, _F1, _F1, _F1, _F2, _F2, _F2, _F2, _F2, _F2, types.int64[:], _F2, _F2, _F2, _F2, _F2,
        types.int64[:], types.int64[:], _F1), cache=True)
 def _proposals(target: np.ndarray, goal: np.ndarray, jerk: np.ndarray, decel: np.ndarray, p: np.ndarray,
                taus: np.ndarray, a_s: np.ndarray, a_y: np.ndarray, a_vs: np.ndarray, a_vy: np.ndarray,
-               a_hx: np.ndarray, a_hy: np.ndarray, s_out: np.ndarray, y_out: np.ndarray, v_out: np.ndarray,
-               vy_out: np.ndarray, a_out: np.ndarray, f_hit: np.ndarray, f_close: np.ndarray,
+               a_hx: np.ndarray, a_hy: np.ndarray, look: np.ndarray, s_out: np.ndarray, y_out: np.ndarray,
+               v_out: np.ndarray, vy_out: np.ndarray, a_out: np.ndarray, f_hit: np.ndarray, f_close: np.ndarray,
                v_other: np.ndarray) -> None:
     """Roll out and check every proposal of `PDMPlanner.plan`, in the ego frame (x along the road, y left).
 
     target (C,) m/s: IDM's desired speed; goal (C,) m: lateral position aimed at; jerk (C,) m/s^3, decel (C,) m/s^2:
     the proposal's bounds; p: v0, vy0, a0, dt, max_accel, max_speed, max_lateral_speed, tan(max_slip),
     idm_standstill, idm_headway_s, sqrt(a b), lateral_accel, corridor_margin, margin_long, margin_lat, ego half
-    length, ego half width, leader lookahead (steps), the speed (m/s) below which the ego stands and the tangent of
-    180 degrees less the bearing beyond which an agent is behind it (`safety.ttc_relevant`); taus (K,) s:
-    time-to-collision probes; agents: a_s, a_y (M, F + 1) m, a_hx, a_hy (M, F + 1) half extents on the road axes,
-    column f at f dt; a_vs, a_vy (M, F) m/s over each step. Writes s, y, v, vy, a (C, F) (state at the end of each
-    step, acceleration over it); f_hit (C,): the first step that collides (margins added; agents behind the ego's
-    centre only while the ego moves sideways towards them), F if none; v_other (C,) m/s: the along-road speed of
-    the agent first hit; f_close (C,): the first step where a probe overlaps (no margins) an agent not behind the
-    moving ego, i.e. the time-to-collision falls under the threshold, F if none.
+    length, ego half width, the speed (m/s) below which the ego stands and the tangent of 180 degrees less the
+    bearing beyond which an agent is behind it (`safety.ttc_relevant`); taus (K,) s: time-to-collision probes;
+    agents: a_s, a_y (M, F + 1) m, a_hx, a_hy (M, F + 1) half extents on the road axes, column f at f dt; a_vs, a_vy
+    (M, F) m/s over each step; look (M,): each agent's leader lookahead, steps. Writes s, y, v, vy, a (C, F) (state
+    at the end of each step, acceleration over it); f_hit (C,): the first step that collides (margins added; agents
+    behind the ego's centre only while the ego moves sideways towards them), F if none; v_other (C,) m/s: the
+    along-road speed of the agent first hit; f_close (C,): the first step where a probe overlaps (no margins) an
+    agent not behind the moving ego, i.e. the time-to-collision falls under the threshold, F if none.
     """
     v0, vy0, a0, dt, a_max, v_cap, vy_max, tan_slip = p[0], p[1], p[2], p[3], p[4], p[5], p[6], p[7]
     s0, headway, sqrt_ab, lat_acc, corridor, m_long, m_lat, le2, we2 = p[8], p[9], p[10], p[11], p[12], p[13], \
         p[14], p[15], p[16]
-    look, stopped, behind = int(p[17]), p[18], p[19]
+    stopped, behind = p[17], p[18]
     ease = jerk.min()
     n_c, n_f = s_out.shape
     n_m = a_s.shape[0]
@@ -279,7 +289,7 @@ def _proposals(target: np.ndarray, goal: np.ndarray, jerk: np.ndarray, decel: np
             # at its present speed has not passed by then: a crosser is followed from before it enters, not after.
             gap, lead_v = np.inf, 0.0
             for m in range(n_m):
-                for k in range(f, min(f + look, n_f) + 1):
+                for k in range(f, min(f + look[m], n_f) + 1):
                     rel = a_s[m, k] - s
                     if rel > 0 and abs(a_y[m, k] - y) < we2 + a_hy[m, k] + corridor and \
                             rel - v * (k - f) * dt > -le2 - a_hx[m, k]:

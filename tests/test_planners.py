@@ -250,6 +250,28 @@ def test_pdm_slows_for_a_crosser_before_it_enters_its_corridor():
     assert first[1.5] < 0.0 < first[0.0]  # followed from before it enters, not only once it is in the way
 
 
+def test_pdm_waits_for_a_pedestrian_forecast_to_cross_from_further_out():
+    # A pedestrian stands at the right kerb 35 m ahead, forecast to walk across in 1.6 s: in the ego's corridor
+    # about 2.4 s from now. Yielded to now (pedestrian_lookahead_s); a car doing the same, or a pedestrian walking
+    # along the kerb, is not followed yet.
+    from simharness.pdm_planner import PDMConfig
+
+    def first_command(agent: AgentType, crosses: bool, config: PDMConfig) -> float:
+        now = _now(10.0, [(35.0, -3.0, 0.0)])
+        now.agent_type[1] = agent
+        now.length[1], now.width[1] = (0.5, 0.5) if agent == AgentType.PEDESTRIAN else (4.3, 1.8)
+        t = np.arange(1, 26) * 0.2
+        walk = 2.0 * np.maximum(t - 1.6, 0.0)
+        y, x = (-3.0 + walk, np.full(25, 35.0)) if crosses else (np.full(25, -3.0), 35.0 + walk)
+        fc = Forecast(agent_id=now.agent_id[1:], mean=np.stack([x, y], -1)[None].astype(np.float32), dt=0.2)
+        return PDMPlanner(EgoLimits(max_speed=14.0), config, road=_road(5.0)).plan(now, fc).acceleration
+
+    default, short = PDMConfig(), PDMConfig(pedestrian_lookahead_s=1.5)
+    assert first_command(AgentType.PEDESTRIAN, True, default) < 0.0 <= first_command(AgentType.PEDESTRIAN, True, short)
+    assert first_command(AgentType.CAR, True, default) >= 0.0
+    assert first_command(AgentType.PEDESTRIAN, False, default) == first_command(AgentType.PEDESTRIAN, False, short)
+
+
 def test_pdm_escapes_off_the_road_only_when_every_road_proposal_collides():
     # A car comes head-on down the ego's line on a 4 m road: braking cannot avoid it, the shoulder can.
     now = _now(10.0, [(60.0, 0.0, -15.0)])
