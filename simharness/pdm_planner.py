@@ -40,6 +40,7 @@ from simharness.metrics.safety import TTC_BEHIND_DEG, TTC_STOPPED
 from simharness.planners import EgoLimits, ego_axis, rows_of
 from simharness.scene import AgentType, Forecast, Scene
 from simharness.sim.base import EgoCommand, RoadGeometry
+from simharness.sim.highway.dynamics import half_extents
 
 
 @dataclasses.dataclass(frozen=True)
@@ -172,9 +173,7 @@ class PDMPlanner:
         keep = ((a_s > -20.0) & (a_s < reach) & (np.abs(a_y) < 12.0)).any(1)
         rows, a_s, a_y, ah = rows[keep], a_s[keep], a_y[keep], ah[keep]
         dh = ah - h0
-        cos_h, sin_h = np.abs(np.cos(dh)), np.abs(np.sin(dh))
-        la, wa = (now.length[rows] / 2).astype(np.float64)[:, None], (now.width[rows] / 2).astype(np.float64)[:, None]
-        a_hx, a_hy = cos_h * la + sin_h * wa, sin_h * la + cos_h * wa  # (M, F + 1) half extents on the road axes
+        a_hx, a_hy = half_extents(now.length[rows, None], now.width[rows, None], dh)  # (M, F + 1) on the road axes
         a_vs, a_vy = np.diff(a_s, axis=1) / dt, np.diff(a_y, axis=1) / dt  # (M, F) speeds over each step
         # A pedestrian forecast to cross the road (not one walking along it) is waited for from further out.
         crossing = (now.agent_type[rows] == AgentType.PEDESTRIAN) & (np.ptp(a_y, axis=1) > cfg.crossing_m)

@@ -37,6 +37,7 @@ from gymnasium import spaces
 from simharness.envs.observation import ego_rotation
 from simharness.pdm_planner import PDMConfig
 from simharness.sim.base import EgoCommand, Frame
+from simharness.sim.highway.dynamics import half_extents
 
 # name -> normalised a[0]: brake hard (-max_decel), ease off, hold speed, speed up
 LONGITUDINAL = {"brake": -1.0, "slower": -0.3, "hold": 0.0, "faster": 0.6}
@@ -62,9 +63,7 @@ def leader(frame: Frame, margin: float = _IDM.corridor_margin) -> tuple[float, f
     origin, rot, h = ego_rotation(frame)
     lon, lat = rot @ (frame.xy.astype(np.float64) - origin).T
     dh = frame.heading.astype(np.float64) - h
-    ca, sa = np.abs(np.cos(dh)), np.abs(np.sin(dh))
-    half_lon = 0.5 * (ca * frame.length + sa * frame.width)  # the box's half-extent along the ego's heading
-    half_lat = 0.5 * (sa * frame.length + ca * frame.width)
+    half_lon, half_lat = half_extents(frame.length, frame.width, dh)  # the boxes on the ego's axes
     gap = lon - half_lon - 0.5 * float(frame.length[e])
     ahead = (lon > 0) & (np.abs(lat) < half_lat + 0.5 * float(frame.width[e]) + margin)
     ahead[e] = False
