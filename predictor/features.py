@@ -449,8 +449,9 @@ def _pad_left(scene: Scene, pad: int) -> Scene:
 def fill_history(scene: Scene, frames: int, rows: np.ndarray) -> Scene:
     """`scene` with the agents `rows` (present at the last column) present in all of its last `frames` columns:
     the columns before an agent's first recorded frame (left-padded where the scene is shorter) extrapolated
-    back at its velocity between its first two recorded frames (held still where it has only one), its
-    heading, speed and extras held at the first frame's. Gaps after the first frame stay gaps.
+    back at its velocity between its first two recorded frames (at its recorded speed along its recorded
+    heading where it has only one), its heading, speed and extras held at the first frame's. Gaps after the
+    first frame stay gaps.
 
     scene: (N, T) agents x frames; frames: columns wanted; rows (M,) int -> Scene (N, max(T, frames)). Other
     agents (the targets' neighbours) stay as recorded, as in training.
@@ -470,7 +471,10 @@ def fill_history(scene: Scene, frames: int, rows: np.ndarray) -> Scene:
     s = np.where(two, later.argmax(1), f)  # second recorded column (the first where there is none)
     xy = scene.xy[rows]
     r = np.arange(rows.size)
-    vel = np.where(two[:, None], (xy[r, s] - xy[r, f]) / np.maximum(s - f, 1)[:, None], 0.0)  # per column
+    # Seen once: its recorded speed along its heading (a standstill would be forecast for a car that just came in).
+    h, v = scene.heading[rows, f], scene.speed[rows, f] * scene.dt
+    once = np.where(np.isfinite(h * v)[:, None], v[:, None] * np.stack([np.cos(h), np.sin(h)], -1), 0.0)
+    vel = np.where(two[:, None], (xy[r, s] - xy[r, f]) / np.maximum(s - f, 1)[:, None], once)  # per column
     fill = (cols[None] < f[:, None]) & (cols[None] >= t - frames)  # (R, T)
     back = (f[:, None] - cols[None]).astype(np.float32)
 

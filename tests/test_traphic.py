@@ -137,13 +137,16 @@ def _straight(n: int = 8, t: int = 15, dt: float = 0.2):
 def test_fill_history_extrapolates_back_at_constant_velocity_for_the_targets_only():
     full = _straight()
     short = full.slice_frames(12)  # the last 3 frames only
-    short = short.replace(valid=short.valid.copy())
-    short.valid[0, 0] = False  # agent 0 seen for two frames, agent 1 for one: held still
+    short = short.replace(valid=short.valid.copy(), speed=short.speed.copy())
+    short.valid[0, 0] = False  # agent 0 seen for two frames, agent 1 for one, agent 4 for one and standing
     short.valid[1, :2] = False
-    filled = fill_history(short, 15, np.array([0, 1, 2]))
+    short.valid[4, :2] = False
+    short.speed[4] = 0.0
+    filled = fill_history(short, 15, np.array([0, 1, 2, 4]))
     assert filled.num_frames == 15 and filled.valid[:3].all()
     np.testing.assert_allclose(filled.xy[0], full.xy[0], atol=1e-4)  # back along its own velocity
-    np.testing.assert_allclose(filled.xy[1], np.repeat(full.xy[1, -1:], 15, 0))
+    np.testing.assert_allclose(filled.xy[1], full.xy[1], atol=1e-4)  # back at its recorded speed and heading
+    np.testing.assert_allclose(filled.xy[4], np.repeat(full.xy[4, -1:], 15, 0))  # recorded standing: held still
     np.testing.assert_allclose(filled.xy[2], full.xy[2], atol=1e-4)
     assert not filled.valid[3, :12].any()  # not a target: left as recorded (padded)
     assert fill_history(full, 15, np.arange(8)).xy is full.xy  # full histories: nothing to do
@@ -160,3 +163,5 @@ def test_a_short_history_forecasts_like_the_full_one():
     fa = pred.predict(full, rows, 25)
     fb = pred.predict(full.slice_frames(13), rows, 25)  # two frames of history
     np.testing.assert_allclose(fb.mean, fa.mean, atol=1e-3)
+    fc = pred.predict(full.slice_frames(14), rows, 25)  # one frame (the first forecast of an episode): its speed
+    np.testing.assert_allclose(fc.mean, fa.mean, atol=1e-3)
