@@ -143,7 +143,7 @@ def test_fill_history_extrapolates_back_at_constant_velocity_for_the_targets_onl
     short.valid[4, :2] = False
     short.speed[4] = 0.0
     filled = fill_history(short, 15, np.array([0, 1, 2, 4]))
-    assert filled.num_frames == 15 and filled.valid[:3].all()
+    assert filled.num_frames == 15 and filled.valid[[0, 1, 2, 4]].all()
     np.testing.assert_allclose(filled.xy[0], full.xy[0], atol=1e-4)  # back along its own velocity
     np.testing.assert_allclose(filled.xy[1], full.xy[1], atol=1e-4)  # back at its recorded speed and heading
     np.testing.assert_allclose(filled.xy[4], np.repeat(full.xy[4, -1:], 15, 0))  # recorded standing: held still
@@ -163,5 +163,5 @@ def test_a_short_history_forecasts_like_the_full_one():
     fa = pred.predict(full, rows, 25)
     fb = pred.predict(full.slice_frames(13), rows, 25)  # two frames of history
     np.testing.assert_allclose(fb.mean, fa.mean, atol=1e-3)
-    fc = pred.predict(full.slice_frames(14), rows, 25)  # one frame (the first forecast of an episode): its speed
+    fc = pred.predict(full.slice_frames(14), rows, 25)  # one frame (an agent that has just come in): its speed
     np.testing.assert_allclose(fc.mean, fa.mean, atol=1e-3)
