@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from simharness.errors import UserError
-from simharness.scene import AgentType, Scene
+from simharness.scene import AgentType, Scene, heading_velocity
 
 FEATURES_VERSION = 2  # the layout of windows and their cache
 TYPE_NAMES = tuple(f"type_{t.label}" for t in AgentType)
@@ -473,7 +473,7 @@ def fill_history(scene: Scene, frames: int, rows: np.ndarray) -> Scene:
     r = np.arange(rows.size)
     # Seen once: its recorded speed along its heading (a standstill would be forecast for a car that just came in).
     h, v = scene.heading[rows, f], scene.speed[rows, f] * scene.dt
-    once = np.where(np.isfinite(h * v)[:, None], v[:, None] * np.stack([np.cos(h), np.sin(h)], -1), 0.0)
+    once = np.where(np.isfinite(h * v)[:, None], heading_velocity(v, h), 0.0)
     vel = np.where(two[:, None], (xy[r, s] - xy[r, f]) / np.maximum(s - f, 1)[:, None], once)  # per column
     fill = (cols[None] < f[:, None]) & (cols[None] >= t - frames)  # (R, T)
     back = (f[:, None] - cols[None]).astype(np.float32)

@@ -38,7 +38,7 @@ from numba import njit, types
 
 from simharness.metrics.safety import TTC_BEHIND_DEG, TTC_STOPPED
 from simharness.planners import EgoLimits, ego_axis, rows_of
-from simharness.scene import AgentType, Forecast, Scene
+from simharness.scene import AgentType, Forecast, Scene, heading_velocity
 from simharness.sim.base import EgoCommand, RoadGeometry
 from simharness.sim.highway.dynamics import half_extents
 
@@ -128,7 +128,7 @@ class PDMPlanner:
         near[e] = False
         rows = np.flatnonzero(near)
         h_now = now.heading[rows, -1].astype(np.float64)
-        vel = now.speed[rows, -1].astype(np.float64)[:, None] * np.stack([np.cos(h_now), np.sin(h_now)], -1)
+        vel = heading_velocity(now.speed[rows, -1].astype(np.float64), h_now)
         steps = np.arange(frames + 1, dtype=np.float64) * dt
         xy = xy_now[rows][:, None] + vel[:, None] * steps[None, :, None]  # (M, F + 1, 2) constant velocity
         covered = np.zeros(rows.size, bool)

@@ -248,6 +248,11 @@ class Scene:
         )
 
 
+def heading_velocity(speed: np.ndarray, heading: np.ndarray) -> np.ndarray:
+    """speed (...) units/s (or units per frame) along heading (...) rad -> (..., 2) velocity in the same units."""
+    return np.asarray(speed)[..., None] * np.stack([np.cos(heading), np.sin(heading)], -1)
+
+
 def stack_frames(
     agent_ids: Sequence[np.ndarray],
     columns: dict[str, Sequence[np.ndarray]],

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from simharness.scene import Forecast, Scene
+from simharness.scene import Forecast, Scene, heading_velocity
 
 
 class ConstantVelocity:
@@ -33,7 +33,7 @@ class ConstantVelocity:
             prev_ok = np.zeros(len(targets), bool)
             vel = np.zeros_like(xy)
         h, v = history.heading[targets, now], history.speed[targets, now]
-        fallback = np.stack([np.cos(h) * v, np.sin(h) * v], -1)
+        fallback = heading_velocity(v, h)
         vel = np.where(prev_ok[:, None], vel, fallback)
         t = np.arange(1, horizon + 1) * history.dt
         mean = xy[:, None] + vel[:, None] * t[None, :, None]

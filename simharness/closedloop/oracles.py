@@ -50,7 +50,7 @@ import numpy as np
 
 from simharness.closedloop.config import LoopClock
 from simharness.planners import Planner
-from simharness.scene import Forecast, Scene
+from simharness.scene import Forecast, Scene, heading_velocity
 from simharness.sim.base import EgoCommand, Frame
 
 
@@ -110,7 +110,7 @@ class Track:
             vel = self.xy[rows, last] - self.xy[rows, last - 1]  # m per frame
             out[:, beyond] = self.xy[rows, last][:, None] + (cols[beyond] - last)[None, :, None] * vel[:, None]
         hd = frame.heading[targets]
-        v = frame.speed[targets, None] * np.stack([np.cos(hd), np.sin(hd)], -1)
+        v = heading_velocity(frame.speed[targets], hd)
         steps = (np.arange(horizon) + 1)[None, :, None] * dt
         fallback = frame.xy[targets][:, None] + v[:, None] * steps
         bad = ~known[:, None] | np.isnan(out).any(-1)

@@ -27,7 +27,7 @@ import numpy as np
 from simharness.closedloop.config import Issued, LoopConfig
 from simharness.metrics import collisions, comfort, displacement, safety
 from simharness.planners import rows_of
-from simharness.scene import AgentType, Scene
+from simharness.scene import AgentType, Scene, heading_velocity
 from simharness.sim.base import RoadGeometry
 
 SCALARS = ("collided", "collisions", "at_fault_collided", "at_fault_collisions", "phantom_braking_s", "near_miss",
@@ -109,7 +109,7 @@ def score_episode(scene: Scene, issued: Issued, config: LoopConfig) -> dict[str,
     placed = np.zeros_like(contact)
     placed[:, first:] = np.cumprod(contact[:, first:], axis=1).astype(bool)
     contact &= ~placed
-    vel = scene.speed[..., None] * np.stack([np.cos(hd), np.sin(hd)], -1)
+    vel = heading_velocity(scene.speed, hd)
     ttc = safety.time_to_collision(xy, vel, bh, ln, wd, va, e, horizon=config.ttc_horizon)
     ttc = np.where(safety.ttc_relevant(xy, bh, scene.speed, va, e), ttc, np.inf)  # nuPlan's: not behind, ego moving
     near = safety.near_misses(ttc, contact, va, config.ttc_threshold)

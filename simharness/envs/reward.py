@@ -30,7 +30,7 @@ import numpy as np
 from simharness.envs.observation import ego_offsets
 from simharness.envs.ttc import ttc_and_gap
 from simharness.metrics import collisions, safety
-from simharness.scene import AgentType
+from simharness.scene import AgentType, heading_velocity
 from simharness.sim.base import Frame, RoadGeometry, scene_from_frames
 
 TTC_HORIZON = 3.0  # s
@@ -131,7 +131,7 @@ def ego_fault(frames: Sequence[Frame], dt: float) -> bool:
     onsets[:, -1] = contact[:, -1] & ~contact[:, -2] if contact.shape[1] > 1 else contact[:, -1]
     if not onsets.any():  # the env's test saw a contact the scene's does not start here: judge those in contact
         onsets[:, -1] = contact[:, -1]
-    vel = scene.speed[..., None] * np.stack([np.cos(hd), np.sin(hd)], -1)
+    vel = heading_velocity(scene.speed, hd)
     phantom = safety.phantom_braking(xy, scene.speed, bh, ln, wd, va, e, dt)
     return bool(safety.ego_at_fault(onsets, xy, vel, hd, wd, va, e, phantom=phantom)[:, -1].any())
 
