@@ -48,7 +48,7 @@ def parse_egos(text: str) -> dict[str, tuple[str, str]]:
             continue
         name, _, path = item.partition("=")
         if name == "ppo" and not path:
-            egos["ppo policy"] = ("const-vel", str(SHIPPED))
+            egos["ppo"] = ("const-vel", str(SHIPPED))
         elif path:
             egos[name] = ("const-vel", path)
         else:

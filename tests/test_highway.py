@@ -162,6 +162,21 @@ def test_ego_commands_and_reactions():
     assert hits["reactive"] == 0 and hits["ignore"] > 0, hits
 
 
+def test_ego_braking_to_a_stop_while_edging_over_keeps_its_heading():
+    """Sideways speed is bounded by the forward speed after the step: the body never turns past atan(vy_max / 4)."""
+    spec = short(duration=6.0, **{"ego.enabled": True, "ego.insert_at": 0.0, "ego.speed": 3.0})
+    sim = make_simulator(spec)
+    f = sim.reset(1)
+    headings, speeds = [], []
+    for _ in range(8):  # hard braking from 3 m/s, asking for the fastest drift to the left throughout
+        f = sim.step(EgoCommand(-2.5, 1.0))
+        headings.append(float(f.heading[f.ego]))
+        speeds.append(float(f.speed[f.ego]))
+    sim.close()
+    assert speeds[0] > 0.0 and speeds[-1] == 0.0, speeds  # it came to a stop inside the run
+    assert max(np.abs(headings)) <= np.arctan(1.0 / 4.0) + 1e-6, np.degrees(headings)  # a car's vy_max is 1 m/s
+
+
 def _cut_ins(scene: Scene, near: float = 20.0) -> int:
     """Background agents moving sideways into the ego's band within `near` m ahead of its front."""
     e = scene.ego

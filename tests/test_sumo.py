@@ -107,6 +107,35 @@ def test_ego_follows_commands(reaction: str):
     assert abs(turn) > 0.02  # heading follows the lateral motion
 
 
+@pytest.mark.parametrize("reaction", ["reactive", "ignore"])
+def test_ego_drifting_to_the_edge_and_braking_records_the_motion_it_made(reaction: str):
+    """Sideways speed is bounded by the forward speed (no sliding once stopped, told to), and the heading and speed
+    are the motion made: it eases into the carriageway's edge, then moves straight on and its heading says so."""
+    spec = load_scenario("sumo_arterial_dense").with_overrides({
+        "warmup": 20.0, "duration": 14.0, "ego.enabled": True, "ego.insert_at": 0.0, "ego.speed": 6.0,
+        "ego.reaction": reaction})
+    side: list[float] = []
+
+    def command(k: int, now) -> EgoCommand:
+        if now.ego >= 0 and not side:  # across to the far edge (8 m at 1 m/s), then back while braking to a stop
+            side.append(-float(np.sign(now.extra["lateral_offset"][now.ego]) or 1.0))
+        s = side[0] if side else 0.0
+        return EgoCommand(0.0, s) if k < 50 else EgoCommand(-2.0, -s)
+
+    scene = _record(spec, 0, command)
+    e = scene.ego
+    v = scene.valid[e]
+    turn = np.abs(scene.heading[e] - scene.extra["sim_heading"][e])[v]
+    lat = scene.extra["lateral_offset"][e][v]
+    assert scene.speed[e][v][-1] == pytest.approx(0.0, abs=1e-6)  # it stopped
+    assert turn.max() <= np.arctan(1.0 / 4.0) + 1e-3, np.degrees(turn.max())  # a car drifts at 1 m/s at most
+    still = np.abs(np.diff(lat)) < 1e-6  # at the edge: no sideways motion made
+    assert still.sum() >= 5 and turn[1:][still].max() < 1e-3
+    assert np.abs(lat[49] - lat[1]) > 7.0 and turn[1:][~still].max() > 0.1  # moving across, the heading shows it
+    arrive = int(np.argmax(still))  # the first frame at the edge: eased into it, not stopped dead from 1 m/s
+    assert 0.0 < abs(lat[arrive] - lat[arrive - 1]) / spec.dt < 0.6
+
+
 def test_second_simulator_in_one_process_is_a_clear_error():
     spec = load_scenario("sumo_arterial_sparse").with_overrides({"warmup": 1.0, "duration": 1.0})
     first, second = SumoSimulator(spec), SumoSimulator(spec)

@@ -34,6 +34,20 @@ class Event:
     detail: str = ""
 
 
+DRIFT_FULL_SPEED = 4.0  # m/s: an ego this fast may move sideways at its type's full lateral speed
+
+
+def ego_lateral_limit(lateral_max: Any, speed_before: Any, speed_after: Any) -> Any:
+    """m/s: the fastest sideways motion of a commanded ego over one step, on every backend.
+
+    lateral_max: the type's lateral speed (m/s); speed_before / speed_after: forward speed (m/s) at the step's start
+    and end; floats or arrays. Scaled by the lower speed over DRIFT_FULL_SPEED (at most 1): no sideways motion without
+    forward speed, so the ego's body (its heading is its direction of motion) never turns more than
+    atan(lateral_max / DRIFT_FULL_SPEED) off its line, even as it brakes to a stop.
+    """
+    return lateral_max * np.clip(np.minimum(speed_before, speed_after) / DRIFT_FULL_SPEED, 0.0, 1.0)
+
+
 @dataclasses.dataclass(frozen=True)
 class EgoCommand:
     """What the harness tells the ego for the next recorded frame.

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from simharness.scene import AgentType
+from simharness.sim.base import ego_lateral_limit
 from simharness.sim.highway import dynamics as dyn
 from simharness.sim.highway.crossing import crossing_clear
 from simharness.sim.highway.decision import choose_offsets
@@ -301,7 +302,10 @@ class Traffic:
         vy = s.vy + dyn.clip(vy_des - s.vy, -dyn.LAT_ACC * dt, dyn.LAT_ACC * dt)
         vy = np.where(s.kind == CROSSING, walking_now * s.cross_dir * s.v0, np.where(s.kind == WALKING, 0.0, vy))
         if any_commanded:
-            vy = np.where(commanded, np.clip(ego_command[1], -vy_lim, vy_lim), vy)
+            # Bounded by the forward speed at the step's end as well: braking to a stop while edging over would
+            # otherwise turn the ego's body (heading = direction of motion) by up to 90 degrees.
+            ego_lim = ego_lateral_limit(s.vy_max, s.vx, v_new)
+            vy = np.where(commanded, np.clip(ego_command[1], -ego_lim, ego_lim), vy)
         if any_scripted:
             vy = np.where(scripted, script[1], vy)
         move = vy * dt

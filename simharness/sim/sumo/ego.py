@@ -14,12 +14,23 @@ import numpy as np
 from simharness.metrics.collisions import boxes_overlap
 from simharness.scenario import ScenarioSpec
 from simharness.scene import DEFAULT_FOOTPRINT, AgentType
-from simharness.sim.base import EgoCommand
+from simharness.sim.base import EgoCommand, ego_lateral_limit
 from simharness.sim.sumo.net import Carriageway, Network
 
 IDM_HEADWAY = 1.2  # s
 IDM_GAP = 2.0  # m
 IDM_DELTA = 4.0
+# m/s^2: the ego slows its sideways motion into the edge of its carriageway no harder than this. SUMO's lanes carry
+# one direction, so the ego cannot cross the centre line of a two-way road that its planner, seeing a lane-less
+# road, may aim across; it eases into that edge instead of stopping dead there.
+EDGE_DECEL = 1.5
+
+
+def ease_to_edge(lat_v: float, lat: float, half: float) -> float:
+    """Lateral speed (m/s, + left) at offset `lat` (m) within [-half, half], slowed to stop at the edge it heads for
+    at `EDGE_DECEL`."""
+    room = max(half - lat if lat_v > 0 else half + lat, 0.0)
+    return float(np.sign(lat_v) * min(abs(lat_v), np.sqrt(2.0 * EDGE_DECEL * room)))
 
 
 def ego_start(net: Network) -> tuple[Carriageway, float]:
@@ -92,10 +103,11 @@ class GhostEgo:
             a, lat_v = command.acceleration, command.lateral_velocity
         a = float(np.clip(a, -2.0 * self.decel, self.accel))
         v_new = float(np.clip(self.v + a * dt, 0.0, self.vmax))
+        lim = float(ego_lateral_limit(self.vlat, self.v, v_new))
         self.s += 0.5 * (self.v + v_new) * dt
         self.v = v_new
         half = self.cw.width / 2 - self.width / 2
-        lat_v = float(np.clip(lat_v, -self.vlat, self.vlat))
+        lat_v = ease_to_edge(float(np.clip(lat_v, -lim, lim)), self.lat, half)
         new_lat = float(np.clip(self.lat + lat_v * dt, -half, half))
         self.lat_v = (new_lat - self.lat) / dt
         self.lat = new_lat

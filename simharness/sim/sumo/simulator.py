@@ -32,9 +32,9 @@ import numpy as np
 from simharness.errors import SimulatorError
 from simharness.scenario import ScenarioSpec
 from simharness.scene import DEFAULT_FOOTPRINT, AgentType
-from simharness.sim.base import EgoCommand, Event, Frame, RoadGeometry
+from simharness.sim.base import EgoCommand, Event, Frame, RoadGeometry, ego_lateral_limit
 from simharness.sim.sumo.demand import KINEMATICS, routes_xml
-from simharness.sim.sumo.ego import GhostEgo, ego_start, free_lateral
+from simharness.sim.sumo.ego import GhostEgo, ease_to_edge, ego_start, free_lateral
 from simharness.sim.sumo.events import EgoPose, EventScript
 from simharness.sim.sumo.net import Network, build_network
 from simharness.sim.sumo.pedestrians import Crossings
@@ -306,15 +306,20 @@ class SumoSimulator:
             t = AgentType.parse(spec.type)
             _, _, vmax, accel, decel, _, vlat, _ = KINEMATICS[t]
             a = float(np.clip(command.acceleration, -2.0 * decel, accel))
-            v = float(np.clip(libsumo.vehicle.getSpeed(EGO_ID) + a * sl, 0.0, vmax))
+            v_was = libsumo.vehicle.getSpeed(EGO_ID)
+            v = float(np.clip(v_was + a * sl, 0.0, vmax))
             libsumo.vehicle.setSpeed(EGO_ID, v)
-            lat_v = float(np.clip(command.lateral_velocity, -vlat, vlat))
-            self._ego_lat_v = lat_v
+            lim = float(ego_lateral_limit(vlat, v_was, v))
+            lat_v = float(np.clip(command.lateral_velocity, -lim, lim))
+            self._ego_lat_v = 0.0
             if lat_v != 0.0:
                 lane = libsumo.vehicle.getLaneID(EGO_ID)
                 half = libsumo.lane.getWidth(lane) / 2 - libsumo.vehicle.getWidth(EGO_ID) / 2
-                lat = float(np.clip(libsumo.vehicle.getLateralLanePosition(EGO_ID) + lat_v * sl, -half, half))
+                was = libsumo.vehicle.getLateralLanePosition(EGO_ID)
+                lat_v = ease_to_edge(lat_v, was, half)
+                lat = float(np.clip(was + lat_v * sl, -half, half))
                 libsumo.vehicle.setLateralLanePosition(EGO_ID, lat)
+                self._ego_lat_v = (lat - was) / sl  # what it moved: at the lane's edge, less than commanded
         if self.spec.ego.reaction == "cut_in" and frame_start:
             self._update_cut_in()
 
