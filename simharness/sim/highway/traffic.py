@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from simharness.scene import AgentType
-from simharness.sim.base import ego_lateral_limit
+from simharness.sim.base import DRIFT_FULL_SPEED, ego_lateral_limit
 from simharness.sim.highway import dynamics as dyn
 from simharness.sim.highway.crossing import crossing_clear
 from simharness.sim.highway.decision import choose_offsets
@@ -296,7 +296,7 @@ class Traffic:
         ego_gap = self.min_gap_lat if self.ego_reaction == "cut_in" else -np.inf  # cut_in: side by side only
         room_l, room_r = lateral_room(order, s.x, s.y, hx, hy, s.vx, s.s0, s.is_ego, ignore_lat, ego_gap)
         self._decide_targets(s, order, hx, hy, lo, hi, ignore_lon, room_l, room_r, fixed, dt)
-        speed_share = dyn.clip(s.vx / 4.0, 0.0, 1.0)  # no sideways motion without forward speed
+        speed_share = dyn.clip(s.vx / DRIFT_FULL_SPEED, 0.0, 1.0)  # no sideways motion without forward speed
         vy_lim = s.vy_max * speed_share
         vy_des = dyn.clip(dyn.LAT_GAIN * (s.y_target - s.y), -vy_lim, vy_lim)
         vy = s.vy + dyn.clip(vy_des - s.vy, -dyn.LAT_ACC * dt, dyn.LAT_ACC * dt)

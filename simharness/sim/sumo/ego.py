@@ -26,11 +26,14 @@ IDM_DELTA = 4.0
 EDGE_DECEL = 1.5
 
 
-def ease_to_edge(lat_v: float, lat: float, half: float) -> float:
-    """Lateral speed (m/s, + left) at offset `lat` (m) within [-half, half], slowed to stop at the edge it heads for
-    at `EDGE_DECEL`."""
+def lateral_move(command: float, lat: float, half: float, limit: float, dt: float) -> float:
+    """The ego's lateral offset (m, + left) after `dt` s from `lat` within [-half, half]: the commanded lateral speed
+    (m/s) clipped to +-limit (`sim.base.ego_lateral_limit`), slowed to stop at the edge it heads for at `EDGE_DECEL`.
+    Both SUMO egos (the one SUMO moves, the ghost) step sideways by this."""
+    lat_v = float(np.clip(command, -limit, limit))
     room = max(half - lat if lat_v > 0 else half + lat, 0.0)
-    return float(np.sign(lat_v) * min(abs(lat_v), np.sqrt(2.0 * EDGE_DECEL * room)))
+    lat_v = float(np.sign(lat_v) * min(abs(lat_v), np.sqrt(2.0 * EDGE_DECEL * room)))
+    return float(np.clip(lat + lat_v * dt, -half, half))
 
 
 def ego_start(net: Network) -> tuple[Carriageway, float]:
@@ -106,9 +109,7 @@ class GhostEgo:
         lim = float(ego_lateral_limit(self.vlat, self.v, v_new))
         self.s += 0.5 * (self.v + v_new) * dt
         self.v = v_new
-        half = self.cw.width / 2 - self.width / 2
-        lat_v = ease_to_edge(float(np.clip(lat_v, -lim, lim)), self.lat, half)
-        new_lat = float(np.clip(self.lat + lat_v * dt, -half, half))
+        new_lat = lateral_move(lat_v, self.lat, self.cw.width / 2 - self.width / 2, lim, dt)
         self.lat_v = (new_lat - self.lat) / dt
         self.lat = new_lat
         self.heading = float(np.arctan2(self.cw.direction[1], self.cw.direction[0]) +

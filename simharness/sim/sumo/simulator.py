@@ -34,7 +34,7 @@ from simharness.scenario import ScenarioSpec
 from simharness.scene import DEFAULT_FOOTPRINT, AgentType
 from simharness.sim.base import EgoCommand, Event, Frame, RoadGeometry, ego_lateral_limit
 from simharness.sim.sumo.demand import KINEMATICS, routes_xml
-from simharness.sim.sumo.ego import GhostEgo, ease_to_edge, ego_start, free_lateral
+from simharness.sim.sumo.ego import GhostEgo, ego_start, free_lateral, lateral_move
 from simharness.sim.sumo.events import EgoPose, EventScript
 from simharness.sim.sumo.net import Network, build_network
 from simharness.sim.sumo.pedestrians import Crossings
@@ -310,14 +310,12 @@ class SumoSimulator:
             v = float(np.clip(v_was + a * sl, 0.0, vmax))
             libsumo.vehicle.setSpeed(EGO_ID, v)
             lim = float(ego_lateral_limit(vlat, v_was, v))
-            lat_v = float(np.clip(command.lateral_velocity, -lim, lim))
             self._ego_lat_v = 0.0
-            if lat_v != 0.0:
+            if float(np.clip(command.lateral_velocity, -lim, lim)) != 0.0:
                 lane = libsumo.vehicle.getLaneID(EGO_ID)
                 half = libsumo.lane.getWidth(lane) / 2 - libsumo.vehicle.getWidth(EGO_ID) / 2
                 was = libsumo.vehicle.getLateralLanePosition(EGO_ID)
-                lat_v = ease_to_edge(lat_v, was, half)
-                lat = float(np.clip(was + lat_v * sl, -half, half))
+                lat = lateral_move(command.lateral_velocity, was, half, lim, sl)
                 libsumo.vehicle.setLateralLanePosition(EGO_ID, lat)
                 self._ego_lat_v = (lat - was) / sl  # what it moved: at the lane's edge, less than commanded
         if self.spec.ego.reaction == "cut_in" and frame_start:
