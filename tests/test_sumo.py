@@ -8,10 +8,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from simharness.closedloop.suite import stress_scenarios
 from simharness.errors import SimulatorError
+from simharness.metrics.collisions import box_heading
+from simharness.metrics.safety import ego_contact
 from simharness.scenario import load_scenario
 from simharness.scene import AgentType, Scene
 from simharness.sim.base import EgoCommand, scene_from_frames
+from simharness.sim.sumo.ego import entry_speed
+from simharness.sim.sumo.net import Carriageway
 from simharness.sim.sumo.simulator import SumoSimulator
 
 
@@ -134,6 +139,35 @@ def test_ego_drifting_to_the_edge_and_braking_records_the_motion_it_made(reactio
     assert np.abs(lat[49] - lat[1]) > 7.0 and turn[1:][~still].max() > 0.1  # moving across, the heading shows it
     arrive = int(np.argmax(still))  # the first frame at the edge: eased into it, not stopped dead from 1 m/s
     assert 0.0 < abs(lat[arrive] - lat[arrive - 1]) / spec.dt < 0.6
+
+
+@pytest.mark.parametrize("reaction", ["reactive", "ignore"])
+def test_ego_enters_at_a_speed_it_can_stop_from(reaction: str):
+    """Placed 1.4 m behind a car at 4.5 m/s (stress/sumo_turn_across, seed 3010), the ego does not enter at the
+    scenario's 10 m/s, from which no braking could avoid the car: braking at its hardest from its first frame, it
+    touches no one (it entered at 10 m/s and ran into the car on both ego paths before)."""
+    spec = stress_scenarios(["sumo_turn_across"])[0].with_overrides({"duration": 3.0, "ego.reaction": reaction})
+    scene = _record(spec, 3010, lambda k, now: EgoCommand(-7.0, 0.0))
+    e = scene.ego
+    first = int(np.argmax(scene.valid[e]))
+    contact = ego_contact(scene.xy, box_heading(scene), scene.length, scene.width, scene.valid, e)
+    assert scene.speed[e, first] < 5.0
+    assert not contact.any()
+
+
+def test_entry_speed_is_cut_only_where_no_braking_could_stop_in_time():
+    cw = Carriageway(edge="e", start=np.zeros(2), end=np.array([500.0, 0.0]), width=7.0, centre_offset=0.0)
+    one = np.ones(1)
+
+    def speed(gap: float, lead: float, lateral: float = 0.0) -> float:  # the agent's rear `gap` m ahead of the ego
+        xy = np.array([[60.0 + 2.25 + gap + 2.25, -lateral]])
+        return entry_speed(cw, 60.0, 0.0, xy, one * 4.5, one * 1.8, one * lead, 4.5, 1.8, 10.0, 0.2)
+
+    assert speed(1.4, 4.5) == pytest.approx(4.5)  # 5.5 m/s faster than the car: 3.3 m to stop, 1.4 m there
+    assert speed(8.0, 0.0) == pytest.approx((8.0 - 2.0) / 1.2)  # a stopped car 8 m ahead: what the gap can follow at
+    assert speed(6.2, 3.8) == 10.0  # 4.0 m to stop, 6.2 m there: entering fast into dense traffic is the scenario
+    assert speed(1.4, 12.0) == 10.0  # faster than the ego
+    assert speed(1.4, 4.5, lateral=2.0) == 10.0  # beside the ego's band, not ahead in it
 
 
 def test_second_simulator_in_one_process_is_a_clear_error():

@@ -34,7 +34,7 @@ from simharness.scenario import ScenarioSpec
 from simharness.scene import DEFAULT_FOOTPRINT, AgentType
 from simharness.sim.base import EgoCommand, Event, Frame, RoadGeometry, ego_lateral_limit
 from simharness.sim.sumo.demand import KINEMATICS, routes_xml
-from simharness.sim.sumo.ego import GhostEgo, ego_start, free_lateral, lateral_move
+from simharness.sim.sumo.ego import GhostEgo, ego_start, entry_speed, free_lateral, lateral_move
 from simharness.sim.sumo.events import EgoPose, EventScript
 from simharness.sim.sumo.net import Network, build_network
 from simharness.sim.sumo.pedestrians import Crossings
@@ -328,16 +328,23 @@ class SumoSimulator:
         if self.spec.ego.reaction == "ignore":  # invisible to SUMO, so every background agent ignores it
             self._ghost = GhostEgo(self.spec, cw, pos, t)
             return
-        libsumo.vehicle.add(EGO_ID, f"r_{cw.edge}" if f"r_{cw.edge}" in self.net.routes else
-                            next(r for r, e in self.net.routes.items() if e[0] == cw.edge),
-                            typeID=f"{self.spec.ego.type}__ego", depart="now", departLane="0",
-                            departPos=f"{pos:.2f}", departSpeed=f"{self.spec.ego.speed:.2f}")
-        # Enter now at the freest lateral spot (a plain insertion may wait seconds for a safe gap).
+        # Enter now at the freest lateral spot (a plain insertion may wait seconds for a safe gap), at a speed from
+        # which it can stop behind whoever is ahead there.
         ids = libsumo.vehicle.getIDList()
         xy = np.array([libsumo.vehicle.getPosition(v) for v in ids], float).reshape(len(ids), 2)
         width = np.array([libsumo.vehicle.getWidth(v) for v in ids], float)
         length, ego_w = DEFAULT_FOOTPRINT[t]
         lat = free_lateral(cw, pos, xy, width, ego_w)
+        # Positions are front bumpers: the centres are half a length back along the heading.
+        lengths = np.array([libsumo.vehicle.getLength(v) for v in ids], float)
+        angle = np.radians([libsumo.vehicle.getAngle(v) for v in ids])
+        centre = xy - 0.5 * lengths[:, None] * np.stack([np.sin(angle), np.cos(angle)], -1).reshape(len(ids), 2)
+        speed = entry_speed(cw, pos, lat, centre, lengths, width, np.array([libsumo.vehicle.getSpeed(v) for v in ids],
+                            float), length, ego_w, self.spec.ego.speed, self.spec.dt)
+        libsumo.vehicle.add(EGO_ID, f"r_{cw.edge}" if f"r_{cw.edge}" in self.net.routes else
+                            next(r for r, e in self.net.routes.items() if e[0] == cw.edge),
+                            typeID=f"{self.spec.ego.type}__ego", depart="now", departLane="0",
+                            departPos=f"{pos:.2f}", departSpeed=f"{speed:.2f}")
         front = cw.start + cw.direction * (pos + length / 2) + cw.right * (cw.centre_offset - lat)
         angle = math.degrees(math.atan2(cw.direction[0], cw.direction[1])) % 360.0
         libsumo.vehicle.moveToXY(EGO_ID, cw.edge, -1, float(front[0]), float(front[1]), angle, 2)
