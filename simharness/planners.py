@@ -26,7 +26,7 @@ from numba import njit, types
 from scipy.special import ndtr
 
 from simharness.scene import Forecast, Scene
-from simharness.sim.base import EgoCommand, RoadGeometry
+from simharness.sim.base import EGO_MAX_DECEL, EgoCommand, RoadGeometry
 
 
 @runtime_checkable
@@ -44,7 +44,7 @@ class EgoLimits:
 
     max_speed: float = 13.9
     max_accel: float = 2.5
-    max_decel: float = 7.0
+    max_decel: float = EGO_MAX_DECEL
     max_lateral_speed: float = 1.5
     max_slip: float = 0.3  # rad: lateral speed at most tan(max_slip) x forward speed (no sideways crabbing)
 

@@ -35,6 +35,7 @@ class Event:
 
 
 DRIFT_FULL_SPEED = 4.0  # m/s: an ego this fast may move sideways at its type's full lateral speed
+EGO_MAX_DECEL = 7.0  # m/s^2: the ego's hardest braking (the planners' `EgoLimits.max_decel`)
 
 
 def ego_lateral_limit(lateral_max: Any, speed_before: Any, speed_after: Any) -> Any:

@@ -14,7 +14,7 @@ import numpy as np
 from simharness.metrics.collisions import boxes_overlap
 from simharness.scenario import ScenarioSpec
 from simharness.scene import DEFAULT_FOOTPRINT, AgentType
-from simharness.sim.base import EgoCommand, ego_lateral_limit
+from simharness.sim.base import EGO_MAX_DECEL, EgoCommand, ego_lateral_limit
 from simharness.sim.sumo.net import Carriageway, Network
 
 IDM_HEADWAY = 1.2  # s
@@ -24,7 +24,6 @@ IDM_DELTA = 4.0
 # one direction, so the ego cannot cross the centre line of a two-way road that its planner, seeing a lane-less
 # road, may aim across; it eases into that edge instead of stopping dead there.
 EDGE_DECEL = 1.5
-HARDEST_BRAKE = 7.0  # m/s^2, the planner's hardest braking (`planners.EgoLimits.max_decel`)
 
 
 def lateral_move(command: float, lat: float, half: float, limit: float, dt: float) -> float:
@@ -63,7 +62,7 @@ def entry_speed(cw: Carriageway, pos: float, lat: float, xy: np.ndarray, length:
                 speed: np.ndarray, own_length: float, own_width: float, wanted: float, dt: float) -> float:
     """The ego's speed (m/s) on entering at `pos` along `cw`, lateral offset `lat`: `wanted`, unless at that speed it
     could not stop behind the nearest agent ahead in its lateral band (that agent holding its speed; one frame of
-    `dt` s before the ego brakes, then HARDEST_BRAKE). Then it enters at a speed it can follow at: the agent's, or
+    `dt` s before the ego brakes, then EGO_MAX_DECEL). Then it enters at a speed it can follow at: the agent's, or
     what the gap less IDM_GAP m covers in IDM_HEADWAY s, whichever is faster. Why: a collision that no driving could
     avoid is the placement's doing, not the ego's; short of that, entering fast into dense traffic is the scenario.
 
@@ -77,7 +76,7 @@ def entry_speed(cw: Carriageway, pos: float, lat: float, xy: np.ndarray, length:
         return wanted
     k = np.flatnonzero(ahead)[np.argmin(gap[ahead])]
     closing = wanted - float(speed[k])
-    if closing <= 0 or closing * dt + closing**2 / (2 * HARDEST_BRAKE) < gap[k]:
+    if closing <= 0 or closing * dt + closing**2 / (2 * EGO_MAX_DECEL) < gap[k]:
         return wanted
     return float(min(wanted, max(speed[k], (gap[k] - IDM_GAP) / IDM_HEADWAY)))
 
@@ -89,7 +88,6 @@ class GhostEgo:
         from simharness.sim.sumo.demand import KINEMATICS
 
         self.cw, self.s, self.lat, self.v = cw, pos, 0.0, spec.ego.speed
-        self.dt = spec.dt
         self.type = agent_type
         _, _, self.vmax, self.accel, self.decel, _, self.vlat, _ = KINEMATICS[agent_type]
         self.length, self.width = DEFAULT_FOOTPRINT[agent_type]
@@ -104,12 +102,11 @@ class GhostEgo:
         rel = xy - self.cw.start
         return rel @ self.cw.direction, self.cw.centre_offset - rel @ self.cw.right
 
-    def place(self, xy: np.ndarray, length: np.ndarray, width: np.ndarray, speed: np.ndarray) -> None:
+    def place(self, xy: np.ndarray, length: np.ndarray, width: np.ndarray, speed: np.ndarray, dt: float) -> None:
         """On entry: the lateral spot with the most clearance to agents within 15 m along the road, at a speed from
         which it can stop behind the agent ahead there (`entry_speed`)."""
         self.lat = free_lateral(self.cw, self.s, xy, width, self.width)
-        self.v = entry_speed(self.cw, self.s, self.lat, xy, length, width, speed, self.length, self.width, self.v,
-                             self.dt)
+        self.v = entry_speed(self.cw, self.s, self.lat, xy, length, width, speed, self.length, self.width, self.v, dt)
         self._placed = True
 
     def advance(self, command: EgoCommand | None, dt: float, xy: np.ndarray, heading: np.ndarray,
@@ -117,7 +114,7 @@ class GhostEgo:
         """One recorded frame of motion given the other agents now: xy (n, 2); heading, speed, length, width,
         ids (n,)."""
         if not self._placed:
-            self.place(xy, length, width, speed)
+            self.place(xy, length, width, speed, dt)
         s, lat = self._frame_coords(xy)
         if command is None:  # IDM on the nearest agent ahead that overlaps the ego's lateral band
             band = np.abs(lat - self.lat) < (width + self.width) / 2

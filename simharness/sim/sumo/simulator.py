@@ -311,7 +311,7 @@ class SumoSimulator:
             libsumo.vehicle.setSpeed(EGO_ID, v)
             lim = float(ego_lateral_limit(vlat, v_was, v))
             self._ego_lat_v = 0.0
-            if float(np.clip(command.lateral_velocity, -lim, lim)) != 0.0:
+            if command.lateral_velocity != 0.0 and lim > 0.0:
                 lane = libsumo.vehicle.getLaneID(EGO_ID)
                 half = libsumo.lane.getWidth(lane) / 2 - libsumo.vehicle.getWidth(EGO_ID) / 2
                 was = libsumo.vehicle.getLateralLanePosition(EGO_ID)
@@ -330,17 +330,11 @@ class SumoSimulator:
             return
         # Enter now at the freest lateral spot (a plain insertion may wait seconds for a safe gap), at a speed from
         # which it can stop behind whoever is ahead there.
-        ids = libsumo.vehicle.getIDList()
-        xy = np.array([libsumo.vehicle.getPosition(v) for v in ids], float).reshape(len(ids), 2)
-        width = np.array([libsumo.vehicle.getWidth(v) for v in ids], float)
+        now = self._traffic_now()
         length, ego_w = DEFAULT_FOOTPRINT[t]
-        lat = free_lateral(cw, pos, xy, width, ego_w)
-        # Positions are front bumpers: the centres are half a length back along the heading.
-        lengths = np.array([libsumo.vehicle.getLength(v) for v in ids], float)
-        angle = np.radians([libsumo.vehicle.getAngle(v) for v in ids])
-        centre = xy - 0.5 * lengths[:, None] * np.stack([np.sin(angle), np.cos(angle)], -1).reshape(len(ids), 2)
-        speed = entry_speed(cw, pos, lat, centre, lengths, width, np.array([libsumo.vehicle.getSpeed(v) for v in ids],
-                            float), length, ego_w, self.spec.ego.speed, self.spec.dt)
+        lat = free_lateral(cw, pos, now.front, now.width, ego_w)
+        speed = entry_speed(cw, pos, lat, (now.front + now.rear) / 2, now.length, now.width, now.speed, length, ego_w,
+                            self.spec.ego.speed, self.spec.dt)
         libsumo.vehicle.add(EGO_ID, f"r_{cw.edge}" if f"r_{cw.edge}" in self.net.routes else
                             next(r for r, e in self.net.routes.items() if e[0] == cw.edge),
                             typeID=f"{self.spec.ego.type}__ego", depart="now", departLane="0",
