@@ -184,3 +184,26 @@ def test_phantom_braking_and_rear_end_fault():
         vel = np.stack([speed, np.zeros_like(speed)], -1)
         fault = safety.ego_at_fault(onsets, xy, vel, heading, width, valid, 0, phantom=phantom)
         assert fault[1, 7] == expect
+
+
+def test_walked_into_from_the_side_at_the_rear_is_not_the_egos_fault():
+    # The ego brakes and stands with nothing ahead (phantom braking); a pedestrian walking across at 1.4 m/s
+    # reaches its rear quarter: 0.23 m into the ego's band at the contact, 0.05 m clear of its side the frame
+    # before (half widths 0.9 + 0.25 m).
+    brake = np.array([8.0, 8.0, 8.0, 6.0, 4.0, 2.0, 0.0, 0.0, 0.0, 0.0])
+    xy, speed, heading, length, width, valid = _queue(brake, None)
+    stop_x = xy[0, -1, 0]
+    xy[1] = np.stack([np.full(10, stop_x - 1.5), 0.92 + 1.4 * 0.2 * (7 - np.arange(10))], -1)
+    speed[1], width[1], length[1] = 1.4, 0.5, 0.5
+    heading[1] = -np.pi / 2 - 0.1  # a little against the flow: not counted in its direction
+    phantom = safety.phantom_braking(xy, speed, heading, length, width, valid, ego=0, dt=0.2)
+    assert phantom[7]
+    onsets = np.zeros(valid.shape, bool)
+    onsets[1, 7] = True
+    vel = np.stack([speed * np.cos(heading), speed * np.sin(heading)], -1)
+    lat = xy[1, :, 1] - xy[0, :, 1]
+    assert abs(lat[7]) < 1.15 - 0.1 <= abs(lat[6])  # in the band at the contact, beside the ego before
+    assert not safety.ego_at_fault(onsets, xy, vel, heading, width, valid, 0, phantom=phantom)[1, 7]
+    # The same pedestrian already in the ego's band the frame before: hit from behind, in line, for nothing.
+    xy[1, 6, 1] = xy[1, 7, 1]
+    assert safety.ego_at_fault(onsets, xy, vel, heading, width, valid, 0, phantom=phantom)[1, 7]

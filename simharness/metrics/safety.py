@@ -222,9 +222,11 @@ def ego_at_fault(onsets: np.ndarray, xy: np.ndarray, velocity: np.ndarray, headi
     Flow direction: mean heading of the valid agents within `flow_radius` m of the ego that move the
     ego's way. Contact in line (lateral overlap in that frame): the ego is at fault if the other is ahead
     and the ego was faster along the flow (it ran into it); hit from behind, only if it was braking or
-    standing for nothing (`phantom`, from `phantom_braking`). Contact side by side: the ego is at fault
-    if it moved across the flow towards the other faster than the other moved towards it (so being cut
-    into while holding its line is not its fault).
+    standing for nothing (`phantom`, from `phantom_braking`). A contact behind the ego's centre is in line
+    only if the other was in line the frame before too (it came from behind): one that came from the side
+    into the ego's rear quarter, as a pedestrian walking into a car that brakes, is a side contact.
+    Contact side by side: the ego is at fault if it moved across the flow towards the other faster than
+    the other moved towards it (so being cut into while holding its line is not its fault).
 
     onsets (N, T) bool (first frames of contact, e.g. `spell_onsets(ego_contact(...))`), xy (N, T, 2) m,
     velocity (N, T, 2) m/s, heading (N, T) rad, width (N,) m, valid (N, T), phantom (T,) bool or None
@@ -244,12 +246,18 @@ def ego_at_fault(onsets: np.ndarray, xy: np.ndarray, velocity: np.ndarray, headi
     normal = np.stack([-axis[:, 1], axis[:, 0]], -1)
     rel = xy[rows, cols] - xy[ego, cols]
     along, lat = np.einsum("pd,pd->p", rel, axis), np.einsum("pd,pd->p", rel, normal)
+    # The frame before contact (the onset's own where either is absent then), in the onset's flow frame.
+    before = np.maximum(cols - 1, 0)
+    before = np.where((cols > 0) & valid[rows, before] & valid[ego, before], before, cols)
+    lat_before = np.einsum("pd,pd->p", xy[rows, before] - xy[ego, before], normal)
     ve, vo = velocity[ego, cols], velocity[rows, cols]
-    in_line = np.abs(lat) < (width[rows] + width[ego]) / 2 - 0.1
+    band = (width[rows] + width[ego]) / 2 - 0.1
+    from_side = (along <= 0) & (np.abs(lat_before) >= band)  # into the rear quarter from the side
+    in_line = (np.abs(lat) < band) & ~from_side
     ran_into = (along > 0) & (np.einsum("pd,pd->p", ve, axis) > np.einsum("pd,pd->p", vo, axis))
     if phantom is not None:  # rear-ended while braking or standing for nothing: the ego's doing
         ran_into |= (along <= 0) & phantom[cols]
-    side = np.sign(lat)
+    side = np.sign(np.where(from_side, lat_before, lat))
     ego_in = np.einsum("pd,pd->p", ve, normal) * side  # ego moving across the flow towards the other
     other_in = -np.einsum("pd,pd->p", vo, normal) * side  # other moving across the flow towards the ego
     out[rows, cols] = np.where(in_line, ran_into, ego_in > other_in)
